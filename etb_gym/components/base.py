@@ -1,0 +1,142 @@
+"""What every physical component is made of: a frozen parameter dataclass and a kernel.
+
+A component contributes to the plant through one scalar *kernel* with the signature::
+
+    kernel(t, phi, omega, i, u, s, p, ds) -> (torque_Nm, voltage_drop_V, inductance_H)
+
+``t`` time [s], ``phi`` plate angle [rad] (0 = closed, opening positive), ``omega`` angular velocity
+[rad/s], ``i`` coil current [A], ``u`` bridge output voltage at the coil terminals [V], ``s`` the
+component's own states (a slice of the plant state), ``p`` its packed parameters (``param_vector()``),
+``ds`` where it writes the time derivatives of its own states.
+
+It returns the torque it applies to the shaft (opening positive), the voltage it drops in the coil loop
+(the drive's ``R*i + e_back``, a bridge loss, ...) and the inductance it adds to the coil loop. The plant
+sums all contributions:  J*domega/dt = sum(torque),  sum(L)*di/dt = u - sum(voltage_drop).
+
+A component whose states need a special update at the integrator's fixed step (stiff friction bristles)
+also provides ``advance(h, t, phi, omega, i, u, s, p)`` which updates ``s`` in place; otherwise the
+integrator applies explicit Euler with ``ds``. Adding a component never means editing the integrator:
+the integrator composes whatever kernels the plant holds (see ``etb_gym/integrate.py``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, ClassVar
+
+import numpy as np
+
+REGISTRY: dict[str, type["Component"]] = {}
+
+
+def check(owner: str, field: str, value: Any, ok: bool, expected: str) -> None:
+    """Raise a ValueError that names the parameter, its value and what was expected."""
+    if not ok:
+        raise ValueError(f"{owner}.{field} = {value!r} is invalid: expected {expected}")
+
+
+def check_finite(owner: str, obj: Any) -> None:
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if isinstance(v, (bool, str)) or v is None:
+            continue
+        if isinstance(v, (int, float)):
+            check(owner, f.name, v, math.isfinite(v), "a finite number")
+
+
+def positive(owner, obj, *names):
+    for n in names:
+        v = getattr(obj, n)
+        check(owner, n, v, v > 0, "a value > 0")
+
+
+def non_negative(owner, obj, *names):
+    for n in names:
+        v = getattr(obj, n)
+        check(owner, n, v, v >= 0, "a value >= 0")
+
+
+@dataclasses.dataclass(frozen=True)
+class Params:
+    """Base of all parameter dataclasses: finite numbers, validated on construction."""
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                object.__setattr__(self, f.name, float(v) if f.type in ("float", float) else v)
+        check_finite(type(self).__name__, self)
+        self.validate()
+
+    def validate(self) -> None:  # overridden by subclasses
+        pass
+
+    def replace(self, **changes) -> "Params":
+        names = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(changes) - names)
+        if unknown:
+            raise ValueError(
+                f"{type(self).__name__}: unknown parameter(s) {unknown}; valid: {sorted(names)}"
+            )
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+class Component:
+    """Base class. Subclasses set ``kind``, ``role``, ``Params``, ``kernel`` and optionally states."""
+
+    kind: ClassVar[str] = ""          # registry id used in plant files, e.g. "friction.lugre"
+    role: ClassVar[str] = "effect"    # drive | friction | spring | stops | effect
+    Params: ClassVar[type[Params]]
+    state_names: ClassVar[tuple[str, ...]] = ()
+    state_units: ClassVar[tuple[str, ...]] = ()
+    kernel: ClassVar[Any] = None      # set as staticmethod(kernel_fn) so instances return the dispatcher
+    advance: ClassVar[Any] = None
+    description: ClassVar[str] = ""
+
+    def __init_subclass__(cls, **kw):
+        super().__init_subclass__(**kw)
+        if cls.kind:
+            REGISTRY[cls.kind] = cls
+
+    def __init__(self, params: Params | None = None, /, **overrides):
+        if params is None:
+            params = self.Params()
+        elif not isinstance(params, self.Params):
+            raise TypeError(f"{type(self).__name__} expects {self.Params.__name__}, got {type(params).__name__}")
+        if overrides:
+            params = params.replace(**overrides)
+        self.params = params
+
+    # -- packing -------------------------------------------------------------------------------
+    def param_vector(self) -> np.ndarray:
+        """Parameters packed for the kernel (SI floats, order documented by the subclass)."""
+        return np.array([float(getattr(self.params, f.name)) for f in dataclasses.fields(self.params)])
+
+    def initial_state(self) -> np.ndarray:
+        return np.zeros(len(self.state_names))
+
+    def rest_state(self, s: np.ndarray, held_torque_Nm: float) -> np.ndarray:
+        """States of this component for a plate at rest with ``held_torque_Nm`` acting on it.
+
+        Friction components with presliding states override this so that a plate placed at an angle
+        stays there if the static friction can hold it. Default: unchanged.
+        """
+        return s
+
+    def with_params(self, **changes) -> "Component":
+        return type(self)(self.params.replace(**changes))
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "params": self.params.to_dict()}
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.params!r})"
+
+    def __eq__(self, other):
+        return type(self) is type(other) and self.params == other.params
+
+    def __hash__(self):
+        return hash((type(self), self.params))

@@ -1,0 +1,453 @@
+"""A throttle plant composed of components; builds the paper's nine models "1A".."3C" by name.
+
+    >>> from etb_gym import make_plant
+    >>> plant = make_plant("3B")                       # LuGre friction + nonlinear-inductance drive
+    >>> traj = plant.simulate(voltage=np.full(500, 5.0), angle_deg=3.0)   # 0.5 s at 5 V
+    >>> traj.angle_deg[-1]
+
+Model names follow Table 3 of the paper: the digit is the friction model (1 viscous, 2 Dahl, 3 LuGre),
+the letter the electric drive (A linear, B nonlinear inductance, C extended flux model).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+from dataclasses import dataclass
+from typing import Iterable, Mapping
+
+import numpy as np
+
+from .components.base import REGISTRY, Component, Params
+from .components.drive import DRIVES
+from .components.friction import FRICTIONS
+from .components.rotor import RotorParams
+from .components.spring import LimpHomeSpring
+from .components.stops import EndStops
+from .components.supply import SupplyParams
+from .integrate import Engine, solve_ivp_reference
+
+MODELS = tuple(f"{f}{d}" for f in "123" for d in "ABC")
+CORE_ROLES = ("drive", "friction", "spring", "stops")
+
+
+def _model_parts(model: str):
+    m = re.fullmatch(r"([123])([ABC])", str(model).strip().upper())
+    if not m:
+        raise ValueError(f"unknown model {model!r}: expected one of {', '.join(MODELS)} "
+                         "(friction 1 viscous / 2 Dahl / 3 LuGre, drive A linear / B nonlinear L / C flux)")
+    return m.group(1), m.group(2)
+
+
+@dataclass
+class Trajectory:
+    """Arrays sampled at the control period; index 0 is the initial state."""
+
+    t_s: np.ndarray
+    states: np.ndarray            # (n+1, n_states), see Plant.state_names
+    duty: np.ndarray              # (n+1,) duty applied during the period that *ends* at t (duty[0] = nan)
+    voltage_V: np.ndarray         # (n+1,) bridge voltage averaged over that period
+    torques_Nm: dict              # component name -> (n+1,) torque on the shaft at the end of the period
+    state_names: tuple
+
+    @property
+    def angle_rad(self):
+        return self.states[:, 0]
+
+    @property
+    def angle_deg(self):
+        return np.degrees(self.states[:, 0])
+
+    @property
+    def velocity_rad_s(self):
+        return self.states[:, 1]
+
+    @property
+    def current_A(self):
+        return self.states[:, 2]
+
+    def state(self, name: str) -> np.ndarray:
+        return self.states[:, self.state_names.index(name)]
+
+
+class Plant:
+    """An ETB plant: rotor + drive + components + supply/bridge, integrated at a fixed control rate.
+
+    Parameters
+    ----------
+    drive, friction, spring, stops : Component
+        The physics. ``friction``/``spring``/``stops`` may be ``None`` (e.g. the drive-only experiment
+        of sec. 4.4).
+    effects : iterable of Component
+        Extra physics (the diagnosis tool's effects): any registered component.
+    rotor : RotorParams
+    supply : SupplyParams
+        Battery voltage, PWM frequency and PWM mode ("averaged" or "switching").
+    control_period_s : float
+        The period at which the duty is updated (default 1 ms).
+    substeps : int
+        Fixed integrator substeps per control period (default 20, i.e. 50 us at 1 ms).
+    """
+
+    def __init__(self, drive: Component, friction: Component | None = None, spring: Component | None = None,
+                 stops: Component | None = None, effects: Iterable[Component] = (),
+                 rotor: RotorParams = RotorParams(), supply: SupplyParams = SupplyParams(),
+                 control_period_s: float = 1e-3, substeps: int = 20, model: str | None = None):
+        if drive is None or getattr(drive, "role", None) != "drive":
+            raise ValueError(f"Plant.drive must be a drive component ({', '.join(c.__name__ for c in DRIVES.values())}), "
+                             f"got {type(drive).__name__}")
+        for role, c in (("friction", friction), ("spring", spring), ("stops", stops)):
+            if c is not None and not isinstance(c, Component):
+                raise ValueError(f"Plant.{role} must be a Component or None, got {type(c).__name__}")
+        if not (isinstance(control_period_s, (int, float)) and math.isfinite(control_period_s) and control_period_s > 0):
+            raise ValueError(f"Plant.control_period_s = {control_period_s!r} is invalid: expected a finite value > 0 s")
+        if not (isinstance(substeps, (int, np.integer)) and substeps >= 1):
+            raise ValueError(f"Plant.substeps = {substeps!r} is invalid: expected an integer >= 1")
+        if not isinstance(rotor, RotorParams):
+            raise ValueError(f"Plant.rotor must be RotorParams, got {type(rotor).__name__}")
+        if not isinstance(supply, SupplyParams):
+            raise ValueError(f"Plant.supply must be SupplyParams, got {type(supply).__name__}")
+        self.drive, self.friction, self.spring, self.stops = drive, friction, spring, stops
+        self.effects = tuple(effects)
+        for e in self.effects:
+            if not isinstance(e, Component):
+                raise ValueError(f"Plant.effects must hold Components, got {type(e).__name__}")
+        self.rotor, self.supply = rotor, supply
+        self.control_period_s = float(control_period_s)
+        self.substeps = int(substeps)
+        self.model = model
+        if stops is not None and spring is not None:
+            lh = spring.params.limp_home_rad
+            lo, hi = stops.params.closed_rad, stops.params.open_rad
+            if not lo < lh < hi:
+                raise ValueError(f"LimpHomeSpringParams.limp_home_rad = {lh!r} is invalid: expected an angle "
+                                 f"strictly between the end stops ({lo} rad, {hi} rad)")
+        if self.supply.switching:
+            n = self.control_period_s * self.supply.pwm_frequency_hz
+            if abs(n - round(n)) > 1e-6 or round(n) < 1:
+                raise ValueError(f"SupplyParams.pwm_frequency_hz = {self.supply.pwm_frequency_hz!r} is invalid in "
+                                 f"switching mode: expected a whole number of PWM periods per control period "
+                                 f"({self.control_period_s} s), got {n:.4g}")
+        self.components = tuple(c for c in (drive, friction, spring, stops) if c is not None) + self.effects
+        names = [self._name(c) for c in self.components]
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            raise ValueError(f"Plant: two components share the name(s) {sorted(dup)}")
+        self.component_names = tuple(names)
+        vecs = [np.asarray(c.param_vector(), float) for c in self.components]
+        self.engine = Engine(self.components, vecs)
+        self.P = np.concatenate([[rotor.inertia_kg_m2], *vecs])
+        self.state_names = ("angle_rad", "velocity_rad_s", "current_A") + tuple(
+            f"{n}.{s}" for n, c in zip(names, self.components) for s in c.state_names)
+        self._lock_from_stops()
+
+    # ------------------------------------------------------------------------------ introspection
+    def _name(self, c):
+        for role in CORE_ROLES:
+            if getattr(self, role, None) is c:
+                return role
+        return getattr(c, "name", None) or c.kind.split(".")[-1] or type(c).__name__
+
+    def _lock_from_stops(self):
+        self.angle_min_rad = self.stops.params.closed_rad if self.stops is not None else -math.inf
+        self.angle_max_rad = self.stops.params.open_rad if self.stops is not None else math.inf
+
+    @property
+    def n_states(self):
+        return self.engine.layout.n_states
+
+    @property
+    def fast(self) -> bool:
+        """True when this plant runs on the compiled fast path."""
+        return self.engine.fast
+
+    @property
+    def limp_home_rad(self):
+        return self.spring.params.limp_home_rad if self.spring is not None else 0.0
+
+    def component(self, name: str) -> Component:
+        if name not in self.component_names:
+            raise KeyError(f"no component {name!r}; this plant has {list(self.component_names)}")
+        return self.components[self.component_names.index(name)]
+
+    def __repr__(self):
+        parts = ", ".join(f"{n}={type(c).__name__}" for n, c in zip(self.component_names, self.components))
+        return f"Plant({self.model or 'custom'}: {parts}, supply={self.supply.voltage_V} V {self.supply.pwm_mode})"
+
+    # ------------------------------------------------------------------------------ variants
+    def replace(self, **kw) -> "Plant":
+        """A copy with some constructor arguments replaced (drive=, friction=, effects=, supply=, ...)."""
+        args = dict(drive=self.drive, friction=self.friction, spring=self.spring, stops=self.stops,
+                    effects=self.effects, rotor=self.rotor, supply=self.supply,
+                    control_period_s=self.control_period_s, substeps=self.substeps, model=self.model)
+        unknown = sorted(set(kw) - set(args))
+        if unknown:
+            raise ValueError(f"Plant.replace: unknown argument(s) {unknown}; valid: {sorted(args)}")
+        args.update(kw)
+        return Plant(**args)
+
+    def with_params(self, overrides: Mapping[str, float] | None = None, **kw) -> "Plant":
+        """A copy with parameters changed, keyed "component.field" (e.g. "friction.coulomb_Nm",
+        "supply.voltage_V", "rotor.inertia_kg_m2", "drive.resistance_ohm")."""
+        changes = dict(overrides or {})
+        changes.update(kw)
+        if not changes:
+            return self
+        groups: dict[str, dict] = {}
+        for key, val in changes.items():
+            if not isinstance(key, str) or "." not in key:
+                raise ValueError(f"parameter override {key!r}: expected 'component.field' with component one of "
+                                 f"{sorted(self.component_names + ('rotor', 'supply'))}")
+            comp, field = key.split(".", 1)
+            groups.setdefault(comp, {})[field] = val
+        new = {}
+        effects = list(self.effects)
+        for comp, fields in groups.items():
+            if comp == "rotor":
+                new["rotor"] = self.rotor.replace(**fields)
+            elif comp == "supply":
+                new["supply"] = self.supply.replace(**fields)
+            elif comp in CORE_ROLES and getattr(self, comp) is not None:
+                new[comp] = getattr(self, comp).with_params(**fields)
+            elif comp in self.component_names:
+                k = self.component_names.index(comp) - sum(getattr(self, r) is not None for r in CORE_ROLES)
+                effects[k] = effects[k].with_params(**fields)
+                new["effects"] = effects
+            else:
+                raise ValueError(f"parameter override {comp}.{next(iter(fields))}: unknown component {comp!r}; "
+                                 f"valid: {sorted(self.component_names + ('rotor', 'supply'))}")
+        return self.replace(**new)
+
+    def params_dict(self) -> dict:
+        """Flat {"component.field": value} of all scalar parameters."""
+        out = {f"rotor.{k}": v for k, v in self.rotor.to_dict().items()}
+        out.update({f"supply.{k}": v for k, v in self.supply.to_dict().items()})
+        for n, c in zip(self.component_names, self.components):
+            for k, v in c.params.to_dict().items():
+                if isinstance(v, (int, float)) and not isinstance(v, bool):
+                    out[f"{n}.{k}"] = v
+        return out
+
+    def to_dict(self) -> dict:
+        """A plain description of the plant (the plant-file format, see docs/plant-file.md)."""
+        d = {"schema": "etb-gym/plant/1", "model": self.model, "control_period_s": self.control_period_s,
+             "substeps": self.substeps, "rotor": self.rotor.to_dict(), "supply": self.supply.to_dict()}
+        for role in CORE_ROLES:
+            c = getattr(self, role)
+            d[role] = None if c is None else c.to_dict()
+        d["effects"] = [dict(e.to_dict(), name=self._name(e)) for e in self.effects]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> "Plant":
+        def comp(spec, where):
+            if spec is None:
+                return None
+            if not isinstance(spec, Mapping) or "kind" not in spec:
+                raise ValueError(f"plant description: {where} must be a table with a 'kind' key")
+            kind = spec["kind"]
+            if kind not in REGISTRY:
+                raise ValueError(f"plant description: {where}.kind = {kind!r} is unknown; valid: {sorted(REGISTRY)}")
+            C = REGISTRY[kind]
+            params = dict(spec.get("params", {}))
+            if "inductance_table" in params and params["inductance_table"] is not None:
+                from .components.drive import InductanceTable
+                params["inductance_table"] = InductanceTable(**params["inductance_table"])
+            names = {f.name for f in dataclasses.fields(C.Params)}
+            unknown = sorted(set(params) - names)
+            if unknown:
+                raise ValueError(f"plant description: {where}.params has unknown key(s) {unknown}; "
+                                 f"valid for {kind}: {sorted(names)}")
+            obj = C(C.Params(**params))
+            if spec.get("name"):
+                obj.name = spec["name"]
+            return obj
+
+        allowed = {"schema", "model", "control_period_s", "substeps", "rotor", "supply", "effects", *CORE_ROLES}
+        unknown = sorted(set(d) - allowed)
+        if unknown:
+            raise ValueError(f"plant description: unknown key(s) {unknown}; valid: {sorted(allowed)}")
+        base = make_plant(d["model"]) if d.get("model") else None
+        kw = {}
+        for role in CORE_ROLES:
+            if role in d:
+                kw[role] = comp(d[role], role)
+            elif base is not None:
+                kw[role] = getattr(base, role)
+        if kw.get("drive") is None:
+            raise ValueError("plant description: needs a 'model' or a 'drive' table")
+        rotor = RotorParams(**d["rotor"]) if "rotor" in d else RotorParams()
+        supply = SupplyParams(**d["supply"]) if "supply" in d else SupplyParams()
+        effects = [comp(e, f"effects[{k}]") for k, e in enumerate(d.get("effects", []))]
+        return cls(effects=effects, rotor=rotor, supply=supply,
+                   control_period_s=d.get("control_period_s", 1e-3), substeps=d.get("substeps", 20),
+                   model=d.get("model"), **kw)
+
+    # ------------------------------------------------------------------------------ states
+    def initial_state(self, angle_rad: float | None = None, velocity_rad_s: float = 0.0, current_A: float = 0.0,
+                      at_rest: bool = True) -> np.ndarray:
+        """A full state vector. ``angle_rad`` defaults to limp-home.
+
+        With ``at_rest`` the friction states are set to hold whatever torque acts on the resting plate,
+        as far as static friction can, so a plate placed at an angle behaves like one that stopped there.
+        """
+        phi = self.limp_home_rad if angle_rad is None else float(angle_rad)
+        for nm, v in (("angle_rad", phi), ("velocity_rad_s", velocity_rad_s), ("current_A", current_A)):
+            if not math.isfinite(v):
+                raise ValueError(f"initial {nm} = {v!r}: expected a finite number")
+        if not (self.angle_min_rad - 1e-9 <= phi <= self.angle_max_rad + 1e-9):
+            raise ValueError(f"initial angle_rad = {phi!r} is outside the end stops "
+                             f"[{self.angle_min_rad}, {self.angle_max_rad}] rad")
+        x = np.zeros(self.n_states)
+        x[0], x[1], x[2] = phi, velocity_rad_s, current_A
+        lay = self.engine.layout
+        for k, c in enumerate(self.components):
+            s0, s1 = lay.state_slices[k]
+            x[s0:s1] = c.initial_state()
+        if at_rest and velocity_rad_s == 0.0:
+            dx = np.empty(self.n_states)
+            aux = np.zeros(len(self.components))
+            self.engine.fns.rhs(0.0, x, 0.0, self.P, dx, aux)
+            held = float(np.sum(aux))
+            for k, c in enumerate(self.components):
+                s0, s1 = lay.state_slices[k]
+                if s1 > s0:
+                    x[s0:s1] = c.rest_state(x[s0:s1].copy(), held)
+        return x
+
+    # ------------------------------------------------------------------------------ stepping
+    def _inputs(self, n, duty, voltage, supply_V):
+        V = self.supply.voltage_V if supply_V is None else supply_V
+        Vs = np.broadcast_to(np.asarray(V, float), (n,)).copy() if np.ndim(V) == 0 else np.asarray(V, float)
+        if Vs.shape != (n,):
+            raise ValueError(f"supply_V has shape {Vs.shape}: expected a scalar or shape ({n},)")
+        if not np.all(np.isfinite(Vs)) or np.any(Vs <= 0):
+            k = int(np.argmax(~np.isfinite(Vs) | (Vs <= 0)))
+            raise ValueError(f"supply_V[{k}] = {Vs[k]!r}: expected a finite voltage > 0 V")
+        if (duty is None) == (voltage is None):
+            raise ValueError("give exactly one of duty= (H-bridge duty in [-1, 1]) or voltage= (V)")
+        if duty is not None:
+            d = np.asarray(duty, float).reshape(-1)
+            bad = ~np.isfinite(d)
+            if bad.any():
+                k = int(np.argmax(bad))
+                raise ValueError(f"duty[{k}] = {d[k]!r}: expected a finite duty cycle in [-1, 1]")
+            out = np.abs(d) > 1 + 1e-12
+            if out.any():
+                k = int(np.argmax(out))
+                raise ValueError(f"duty[{k}] = {d[k]!r}: expected a duty cycle in [-1, 1]")
+            return np.clip(d, -1, 1), Vs
+        v = np.asarray(voltage, float).reshape(-1)
+        bad = ~np.isfinite(v)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise ValueError(f"voltage[{k}] = {v[k]!r}: expected a finite voltage")
+        if v.shape != (n,):
+            raise ValueError(f"voltage has shape {v.shape}: expected ({n},)")
+        over = np.abs(v) > Vs * (1 + 1e-12)
+        if over.any():
+            k = int(np.argmax(over))
+            raise ValueError(f"voltage[{k}] = {v[k]!r} V exceeds the supply ({Vs[k]} V): the H-bridge can only "
+                             f"apply voltages in [-supply, +supply]")
+        return np.clip(v / Vs, -1, 1), Vs
+
+    def simulate(self, duty=None, *, voltage=None, x0=None, angle_deg: float | None = None,
+                 supply_V=None, t0: float = 0.0, path: str = "fast") -> Trajectory:
+        """Simulate a sequence of control periods.
+
+        Give ``duty`` (H-bridge duty in [-1, 1] per control period) or ``voltage`` (V per period, at most
+        the supply voltage). Start from ``x0`` (a full state) or a plate at rest at ``angle_deg``
+        (default limp-home). ``path``: "fast" (compiled when available) or "plain" (pure Python).
+        """
+        seq = duty if duty is not None else voltage
+        if seq is None:
+            raise ValueError("give exactly one of duty= (H-bridge duty in [-1, 1]) or voltage= (V)")
+        n = int(np.size(seq))
+        if n < 1:
+            raise ValueError("simulate needs at least one control period of input")
+        d, Vs = self._inputs(n, duty, voltage, supply_V)
+        if x0 is None:
+            x0 = self.initial_state(None if angle_deg is None else math.radians(angle_deg))
+        else:
+            x0 = self.check_state(x0)
+        if path not in ("fast", "plain"):
+            raise ValueError(f"path = {path!r}: expected 'fast' or 'plain'")
+        fns = self.engine.fns if path == "fast" else self.engine.plain
+        X = np.empty((n + 1, self.n_states))
+        A = np.empty((n + 1, len(self.components)))
+        done = fns.simulate(x0, d, Vs, self.P, float(t0), self.control_period_s, self.substeps,
+                            self.supply.switching, self.supply.pwm_frequency_hz, X, A)
+        if done < n:
+            raise FloatingPointError(f"the state became non-finite in control period {done} "
+                                     f"(t = {t0 + done * self.control_period_s:.6f} s): {dict(zip(self.state_names, X[done + 1]))}")
+        return self._trajectory(X, A, d, Vs, t0)
+
+    def _trajectory(self, X, A, d, Vs, t0):
+        n = len(d)
+        t = t0 + self.control_period_s * np.arange(n + 1)
+        duty = np.concatenate([[np.nan], d])
+        volt = np.concatenate([[np.nan], d * Vs])
+        torques = {nm: A[:, k] for k, nm in enumerate(self.component_names)}
+        return Trajectory(t, X, duty, volt, torques, self.state_names)
+
+    def reference(self, duty=None, *, voltage=None, x0=None, angle_deg=None, supply_V=None, t0=0.0,
+                  method="LSODA", rtol=1e-9) -> Trajectory:
+        """The same simulation with scipy's adaptive ``solve_ivp`` (the accuracy reference)."""
+        seq = duty if duty is not None else voltage
+        n = int(np.size(seq))
+        d, Vs = self._inputs(n, duty, voltage, supply_V)
+        x0 = self.initial_state(None if angle_deg is None else math.radians(angle_deg)) if x0 is None \
+            else self.check_state(x0)
+        X = solve_ivp_reference(self.engine, self.P, x0, d, Vs, self.control_period_s, t0=t0,
+                                switching=self.supply.switching, f_pwm=self.supply.pwm_frequency_hz,
+                                method=method, rtol=rtol)
+        A = np.zeros((n + 1, len(self.components)))
+        dx = np.empty(self.n_states)
+        for k in range(n + 1):
+            self.engine.fns.rhs(t0 + k * self.control_period_s, X[k], d[max(k - 1, 0)] * Vs[max(k - 1, 0)],
+                                self.P, dx, A[k])
+        return self._trajectory(X, A, d, Vs, t0)
+
+    def check_state(self, x) -> np.ndarray:
+        x = np.array(x, dtype=float).reshape(-1)
+        if x.shape != (self.n_states,):
+            raise ValueError(f"state has {x.size} entries: expected {self.n_states} {self.state_names}")
+        bad = ~np.isfinite(x)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise ValueError(f"state {self.state_names[k]} = {x[k]!r}: expected a finite number")
+        return x
+
+    def step(self, x: np.ndarray, duty: float, supply_V: float | None = None, t0: float = 0.0,
+             aux: np.ndarray | None = None) -> np.ndarray:
+        """Advance state ``x`` (updated in place and returned) by one control period at ``duty``."""
+        if not math.isfinite(duty):
+            raise ValueError(f"duty = {duty!r}: expected a finite duty cycle in [-1, 1]")
+        d = min(1.0, max(-1.0, float(duty)))
+        V = self.supply.voltage_V if supply_V is None else float(supply_V)
+        if aux is None:
+            aux = np.zeros(len(self.components))
+        ok = self.engine.fns.control_step(x, d, V, self.P, float(t0), self.control_period_s, self.substeps,
+                                          self.supply.switching, self.supply.pwm_frequency_hz, aux)
+        if not ok:
+            raise FloatingPointError(f"the plant state became non-finite: {dict(zip(self.state_names, x))}")
+        return x
+
+
+def make_plant(model: str = "3B", overrides: Mapping[str, float] | None = None, *,
+               pwm_mode: str | None = None, supply_V: float | None = None, control_period_s: float = 1e-3,
+               substeps: int = 20, effects: Iterable[Component] = ()) -> Plant:
+    """Build one of the paper's nine models ("1A".."3C") with the documented default parameters.
+
+    ``overrides`` changes parameters by "component.field" (see :meth:`Plant.with_params`).
+    """
+    f, d = _model_parts(model)
+    supply = SupplyParams()
+    if pwm_mode is not None:
+        supply = supply.replace(pwm_mode=pwm_mode)
+    if supply_V is not None:
+        supply = supply.replace(voltage_V=supply_V)
+    plant = Plant(drive=DRIVES[d](), friction=FRICTIONS[f](), spring=LimpHomeSpring(), stops=EndStops(),
+                  effects=effects, supply=supply, control_period_s=control_period_s, substeps=substeps,
+                  model=f + d)
+    return plant.with_params(overrides) if overrides else plant
