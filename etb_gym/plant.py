@@ -218,6 +218,39 @@ class Plant:
                                  f"valid: {sorted(self.component_names + ('rotor', 'supply'))}")
         return self.replace(**new)
 
+    def param_vector(self, overrides: Mapping[str, float] | None = None) -> np.ndarray:
+        """The packed parameter vector P, optionally with "component.field" overrides applied and
+        validated, without building a new plant. For per-episode randomization: the result can be
+        stepped by this plant's engine (same layout) via ``step(..., P=...)`` or ``step_batch``."""
+        if not overrides:
+            return self.P.copy()
+        rotor = self.rotor
+        comps = list(self.components)
+        groups: dict[str, dict] = {}
+        for key, val in overrides.items():
+            if not isinstance(key, str) or "." not in key:
+                raise ValueError(f"parameter override {key!r}: expected 'component.field'")
+            comp, field = key.split(".", 1)
+            groups.setdefault(comp, {})[field] = val
+        for comp, fields in groups.items():
+            if comp == "rotor":
+                rotor = rotor.replace(**fields)
+            elif comp in self.component_names:
+                k = self.component_names.index(comp)
+                comps[k] = comps[k].with_params(**fields)
+            elif comp == "supply":
+                raise ValueError(f"supply.{next(iter(fields))}: the supply is not part of P; pass supply_V "
+                                 "to step()/simulate()")
+            else:
+                raise ValueError(f"parameter override {comp}.{next(iter(fields))}: unknown component {comp!r}; "
+                                 f"valid: {sorted(self.component_names + ('rotor',))}")
+        vecs = [np.asarray(c.param_vector(), float) for c in comps]
+        P = np.concatenate([[rotor.inertia_kg_m2], *vecs])
+        if P.shape != self.P.shape:
+            raise ValueError("these overrides change the parameter layout (e.g. an inductance table); "
+                             "build a new plant with with_params() instead")
+        return P
+
     def params_dict(self) -> dict:
         """Flat {"component.field": value} of all scalar parameters."""
         out = {f"rotor.{k}": v for k, v in self.rotor.to_dict().items()}
@@ -418,16 +451,30 @@ class Plant:
             raise ValueError(f"state {self.state_names[k]} = {x[k]!r}: expected a finite number")
         return x
 
+    def step_batch(self, X: np.ndarray, duty: np.ndarray, supply_V: np.ndarray, P: np.ndarray,
+                   t0: np.ndarray, aux: np.ndarray) -> np.ndarray:
+        """Advance N plants (rows of X, P) by one control period in one compiled, parallel call.
+
+        X (N, n_states) and aux (N, n_components) are updated in place; duty, supply_V, t0 are (N,).
+        Duties must already be finite and inside [-1, 1] (the vector env checks them). Returns a bool
+        array: False where a plant's state became non-finite."""
+        ok = np.empty(X.shape[0], dtype=np.bool_)
+        self.engine.fns.batch_step(X, duty, supply_V, P, t0, self.control_period_s, self.substeps,
+                                   self.supply.switching, self.supply.pwm_frequency_hz, aux, ok)
+        return ok
+
     def step(self, x: np.ndarray, duty: float, supply_V: float | None = None, t0: float = 0.0,
-             aux: np.ndarray | None = None) -> np.ndarray:
-        """Advance state ``x`` (updated in place and returned) by one control period at ``duty``."""
+             aux: np.ndarray | None = None, P: np.ndarray | None = None) -> np.ndarray:
+        """Advance state ``x`` (updated in place and returned) by one control period at ``duty``.
+
+        ``P`` optionally replaces the plant's parameter vector (see :meth:`param_vector`)."""
         if not math.isfinite(duty):
             raise ValueError(f"duty = {duty!r}: expected a finite duty cycle in [-1, 1]")
         d = min(1.0, max(-1.0, float(duty)))
         V = self.supply.voltage_V if supply_V is None else float(supply_V)
         if aux is None:
             aux = np.zeros(len(self.components))
-        ok = self.engine.fns.control_step(x, d, V, self.P, float(t0), self.control_period_s, self.substeps,
+        ok = self.engine.fns.control_step(x, d, V, self.P if P is None else P, float(t0), self.control_period_s, self.substeps,
                                           self.supply.switching, self.supply.pwm_frequency_hz, aux)
         if not ok:
             raise FloatingPointError(f"the plant state became non-finite: {dict(zip(self.state_names, x))}")

@@ -5,6 +5,7 @@ from .drive import (DRIVES, FluxDrive, FluxDriveParams, InductanceTable, LinearD
 from .friction import (FRICTIONS, DahlFriction, DahlFrictionParams, LuGreFriction, LuGreFrictionParams,
                        ViscousFriction, ViscousFrictionParams)
 from .rotor import RotorParams
+from .sensor import PositionSensor, PositionSensorParams
 from .spring import LimpHomeSpring, LimpHomeSpringParams
 from .stops import EndStops, EndStopsParams
 from .supply import PWM_MODES, SupplyParams

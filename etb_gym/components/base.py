@@ -127,7 +127,10 @@ class Component:
         return s
 
     def with_params(self, **changes) -> "Component":
-        return type(self)(self.params.replace(**changes))
+        new = type(self)(self.params.replace(**changes))
+        if "name" in self.__dict__:
+            new.name = self.name
+        return new
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "params": self.params.to_dict()}

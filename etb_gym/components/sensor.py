@@ -1,0 +1,83 @@
+"""Position (and current) sensing: gain, offset, noise, quantization, delay. Not part of the ODE.
+
+    measured = q * round((gain * phi(t - delay) + offset + n) / q),    n ~ N(0, sigma^2)
+
+with q the resolution (0 = none). The delay is a whole number of control periods. The current sensor
+adds N(0, sigma_i^2) noise and its own quantization. Angles are radians inside; the env and the
+recording files present degrees (documented edges).
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import math
+
+import numpy as np
+
+from .base import Params, check, non_negative
+
+
+@dataclasses.dataclass(frozen=True)
+class PositionSensorParams(Params):
+    noise_std_rad: float = math.radians(0.01)          # white noise of the angle reading
+    resolution_rad: float = math.radians(90.0 / 4096)  # 12 bits over 90 deg = 0.022 deg
+    offset_rad: float = 0.0
+    gain: float = 1.0
+    delay_steps: int = 0                               # transport delay in control periods
+    current_noise_std_A: float = 0.01
+    current_resolution_A: float = 0.0
+
+    def validate(self):
+        n = "PositionSensorParams"
+        non_negative(n, self, "noise_std_rad", "resolution_rad", "current_noise_std_A", "current_resolution_A")
+        check(n, "gain", self.gain, self.gain > 0, "a gain > 0")
+        check(n, "delay_steps", self.delay_steps, isinstance(self.delay_steps, int) and self.delay_steps >= 0,
+              "a whole number of control periods >= 0")
+
+
+def _quantize(x, q):
+    return x if q <= 0 else q * np.round(np.asarray(x) / q)
+
+
+class PositionSensor:
+    """Streaming and batch reading of the plate angle and coil current."""
+
+    def __init__(self, params: PositionSensorParams | None = None, **overrides):
+        p = params or PositionSensorParams()
+        self.params = p.replace(**overrides) if overrides else p
+        self._buf: collections.deque = collections.deque(maxlen=self.params.delay_steps + 1)
+
+    # the one equation, shared by the streaming and the array reading
+    def transform(self, angle_rad, noise):
+        p = self.params
+        return _quantize(p.gain * np.asarray(angle_rad, float) + p.offset_rad + noise, p.resolution_rad)
+
+    def reset(self, angle_rad: float) -> None:
+        self._buf.clear()
+        for _ in range(self._buf.maxlen):
+            self._buf.append(float(angle_rad))
+
+    def read(self, angle_rad: float, rng: np.random.Generator) -> float:
+        """Push the true angle of this control period, return the (delayed, noisy) reading."""
+        self._buf.append(float(angle_rad))
+        noise = rng.normal(0.0, self.params.noise_std_rad) if self.params.noise_std_rad > 0 else 0.0
+        return float(self.transform(self._buf[0], noise))
+
+    def read_current(self, current_A: float, rng: np.random.Generator) -> float:
+        p = self.params
+        n = rng.normal(0.0, p.current_noise_std_A) if p.current_noise_std_A > 0 else 0.0
+        return float(_quantize(current_A + n, p.current_resolution_A))
+
+    def measure(self, angle_rad: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Readings of a whole sampled trajectory (the first ``delay_steps`` samples repeat the start)."""
+        a = np.asarray(angle_rad, float)
+        d = self.params.delay_steps
+        delayed = np.concatenate([np.full(min(d, a.size), a[0]), a[: a.size - d]]) if d else a
+        noise = rng.normal(0.0, self.params.noise_std_rad, a.size) if self.params.noise_std_rad > 0 else 0.0
+        return self.transform(delayed, noise)
+
+    def measure_current(self, current_A: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        p = self.params
+        c = np.asarray(current_A, float)
+        n = rng.normal(0.0, p.current_noise_std_A, c.size) if p.current_noise_std_A > 0 else 0.0
+        return _quantize(c + n, p.current_resolution_A)
