@@ -1,0 +1,99 @@
+"""Plant files: a plant (parameters and extra components) as TOML or JSON. Format: docs/plant-file.md.
+
+    save_plant(plant, "calibrated_plant.toml")      # written atomically
+    plant = load_plant("calibrated_plant.toml")     # or .json; gym.make("ETB-3B-v0", plant=path)
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+from .plant import Plant
+
+
+def _toml_value(v):
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int,)):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise ValueError(f"cannot write non-finite value {v!r} to a plant file")
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _toml_table(lines, prefix, d, array=False):
+    scalars = {k: v for k, v in d.items() if not isinstance(v, dict) and v is not None}
+    tables = {k: v for k, v in d.items() if isinstance(v, dict)}
+    lines.append(f"[[{prefix}]]" if array else f"[{prefix}]")
+    for k, v in scalars.items():
+        lines.append(f"{k} = {_toml_value(v)}")
+    for k, v in tables.items():
+        _toml_table(lines, f"{prefix}.{k}", v)
+
+
+def dumps_toml(d: dict) -> str:
+    lines = [f"# etb-gym plant file ({d.get('schema', 'etb-gym/plant/1')}), see docs/plant-file.md"]
+    top = {k: v for k, v in d.items() if not isinstance(v, (dict, list)) and v is not None}
+    for k, v in top.items():
+        lines.append(f"{k} = {_toml_value(v)}")
+    for k, v in d.items():
+        if isinstance(v, dict):
+            lines.append("")
+            _toml_table(lines, k, v)
+    for e in d.get("effects", []):
+        lines.append("")
+        _toml_table(lines, "effects", e, array=True)
+    return "\n".join(lines) + "\n"
+
+
+def save_plant(plant: Plant, path) -> Path:
+    """Write ``plant`` to ``path`` (.toml or .json) atomically."""
+    path = Path(path)
+    d = plant.to_dict()
+    if path.suffix == ".json":
+        text = json.dumps(d, indent=2)
+    elif path.suffix == ".toml":
+        text = dumps_toml(d)
+    else:
+        raise ValueError(f"plant file {path}: expected a .toml or .json file name")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(text)
+    os.replace(tmp, path)
+    return path
+
+
+def load_plant(path) -> Plant:
+    """Read a plant file (.toml or .json). Errors name the file and the offending key."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"plant file {path} does not exist")
+    try:
+        if path.suffix == ".json":
+            d = json.loads(path.read_text())
+        elif path.suffix == ".toml":
+            import tomllib
+
+            d = tomllib.loads(path.read_text())
+        else:
+            raise ValueError(f"plant file {path}: expected a .toml or .json file")
+    except (json.JSONDecodeError, ValueError) as e:
+        if isinstance(e, ValueError) and "expected a .toml" in str(e):
+            raise
+        raise ValueError(f"plant file {path}: cannot parse: {e}") from e
+    if not isinstance(d, dict):
+        raise ValueError(f"plant file {path}: expected a table at the top level")
+    try:
+        return Plant.from_dict(d)
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"plant file {path}: {e}") from e
