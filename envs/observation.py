@@ -61,3 +61,16 @@ def decode(obs, observe_current: bool | None = None) -> Measurement:
         last_duty=float(o[3]),
         current_A=float(o[4] * CURRENT_SCALE_A) if has_i else None,
     )
+
+
+def encode_into(out: np.ndarray, angle_deg, reference_deg, last_duty, current_A=None) -> np.ndarray:
+    """The same layout as :func:`encode`, written into ``out`` (shape (n,) for one observation or (N, n) for
+    a batch with array arguments). Used by the envs to avoid per-step temporaries; the entries after the
+    base fields (and the current, if given) are left to the caller."""
+    out[..., 0] = (angle_deg - ANGLE_CENTER_DEG) / ANGLE_SCALE_DEG
+    out[..., 1] = (reference_deg - ANGLE_CENTER_DEG) / ANGLE_SCALE_DEG
+    out[..., 2] = (reference_deg - angle_deg) / ANGLE_SCALE_DEG
+    out[..., 3] = last_duty
+    if current_A is not None:
+        out[..., 4] = current_A / CURRENT_SCALE_A
+    return out

@@ -1,0 +1,585 @@
+"""The ETB Gymnasium environment: track a throttle-angle reference with the H-bridge duty cycle."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from etb_gym.components.sensor import PositionSensor, PositionSensorParams
+from etb_gym.plant import MODELS, Plant, make_plant
+
+from . import observation as obsmod
+from .references import RANDOM_REFERENCES, Reference, as_reference, make_reference
+
+RAD2DEG = 180.0 / math.pi
+TRACKING_SCALE_DEG = 90.0
+DEFAULT_REWARD_WEIGHTS = {"tracking": 1.0, "effort": 0.02, "chattering": 0.05}
+# per-episode randomization: quantity -> (low, high), drawn uniformly in this order
+DEFAULT_RANDOMIZATION = {
+    "supply_V": (9.0, 16.0),                # battery voltage seen by the bridge [V]
+    "coil_temperature_C": (-40.0, 125.0),   # R(T) = R_20 * (1 + 0.00393 * (T - 20 C))
+    "friction_scale": (0.5, 1.5),           # multiplies all friction torques (T_c, T_s, sigma2)
+    "spring_scale": (0.8, 1.2),             # multiplies spring preload and rate
+    "inertia_scale": (0.9, 1.1),            # multiplies J
+    "sensor_noise_std_deg": (0.0, 0.05),    # white noise of the angle sensor [deg]
+}
+COPPER_ALPHA_PER_K = 0.00393
+RESISTANCE_REFERENCE_C = 20.0
+FRICTION_FIELDS = ("coulomb_Nm", "static_Nm", "viscous_Nm_s_per_rad")
+SPRING_FIELDS = ("preload_Nm", "rate_Nm_per_rad")
+RESET_OPTIONS = ("angle_deg", "reference", "params", "supply_V")
+ENV_KWARGS = ("model", "reference", "episode_s", "control_period_s", "observe_current", "full_state", "sensor",
+              "plant", "params", "supply_V", "pwm_mode", "randomize", "reward_weights", "render_mode")
+OBS_BOUND = 10.0           # observation box: [-10, 10] except last_duty in [-1, 1]
+REFERENCE_MARGIN_DEG = 90.0  # references must stay within the end stops +- this margin
+NOISE_BLOCK = 128          # sensor noise is drawn from np_random in blocks of this many control periods
+_ROLE_TORQUE_KEYS = {"drive": "torque_electric_Nm", "friction": "torque_friction_Nm",
+                     "spring": "torque_spring_Nm", "stops": "torque_stops_Nm"}
+
+
+def load_plant_spec(plant) -> Plant:
+    """A Plant from a path (.toml/.json plant file), a plant description dict, or a Plant."""
+    if isinstance(plant, Plant):
+        return plant
+    if isinstance(plant, (str, Path)):
+        from etb_gym.plantfile import load_plant
+
+        return load_plant(plant)
+    if isinstance(plant, Mapping):
+        return Plant.from_dict(plant)
+    raise ValueError(f"plant = {plant!r}: expected a plant file path (.toml or .json), a plant description "
+                     "dict (Plant.to_dict()) or a Plant")
+
+
+def _finite_number(where, v, lo=-math.inf, hi=math.inf, expected="a finite number"):
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where} = {v!r} is invalid: expected {expected}") from None
+    if not (math.isfinite(f) and lo <= f <= hi):
+        raise ValueError(f"{where} = {v!r} is invalid: expected {expected}")
+    return f
+
+
+class Episode:
+    """What is drawn at a reset: parameter vector, supply, initial state, reference and its table."""
+
+    __slots__ = ("P", "supply_V", "x0", "reference", "ref_table", "noise_std_rad", "draws")
+
+    def __init__(self, P, supply_V, x0, reference, ref_table, noise_std_rad, draws):
+        self.P, self.supply_V, self.x0 = P, supply_V, x0
+        self.reference, self.ref_table = reference, ref_table
+        self.noise_std_rad, self.draws = noise_std_rad, draws
+
+
+class ETBEnv(gym.Env):
+    """
+    ## Description
+
+    An electronic throttle body (paper models 1A..3C): a DC motor drives the throttle plate through a gear
+    against two preloaded return springs that meet at the limp-home angle (3 deg), heavy friction and two
+    end stops (0 deg closed, 90 deg open). The agent sets the H-bridge duty cycle once per control period
+    (1 ms) so that the plate angle follows a reference. The plant is integrated with the package's fixed
+    20-substep stepper (``etb_gym.plant``), so ETB-3B-v0 has LuGre friction and a nonlinear-inductance
+    drive, and a plant file can add any extra physics (``plant=``).
+
+    ## Action Space
+
+    ``Box(-1, 1, (1,), float32)``: the H-bridge duty cycle d. The coil sees u = d * V_supply (averaged PWM,
+    or switched at 5 kHz with ``pwm_mode="switching"``). Finite actions outside [-1, 1] are clipped to it
+    (the applied value is ``info["duty"]``); NaN or infinite actions raise ValueError.
+
+    ## Observation Space
+
+    ``Box(-10, 10, (n,), float32)`` (``last_duty`` in [-1, 1]) in the layout of ``etb_gym.envs.observation`` (decode it with
+    ``observation.decode``), every entry of order one:
+
+    | index | entry | unit / scaling |
+    |-------|-------|----------------|
+    | 0 | sensed throttle angle (sensor model: noise, 12-bit quantization, offset/gain, delay) | (deg - 45) / 45 |
+    | 1 | reference angle | (deg - 45) / 45 |
+    | 2 | reference - sensed angle | deg / 45 |
+    | 3 | duty applied in the previous period | [-1, 1] |
+    | 4 | sensed coil current (only with ``observe_current=True``) | A / 10 |
+    | ... | full plant state (only with ``full_state=True``): ``plant.state_names`` each divided by ``env.state_scales`` | ~1 |
+
+    Typical ranges: angle entries in [-1.02, 1.02], current in [-1.3, 1.3]. References must stay within the
+    end stops +- 90 deg, so the box is never left with end stops; for a plant without end stops or with
+    ``full_state`` the entries are clipped to the box.
+
+    ## Rewards
+
+    With e = reference - true angle [deg] at the end of the period, d the applied duty and d_prev the one
+    before::
+
+        reward = -( w_tracking * |e| / 90  +  w_effort * d^2  +  w_chattering * ((d - d_prev) / 2)^2 )
+
+    Default weights ``{"tracking": 1.0, "effort": 0.02, "chattering": 0.05}`` (``reward_weights`` replaces
+    any of them); every term is at most its weight, so the worst step reward is about -1.07 and a good
+    controller earns about -0.01 per step (~1 deg error).
+
+    ## Starting State
+
+    The plate rests at ``angle_deg`` (default: limp-home, 3 deg) with zero velocity and current; the
+    friction states hold whatever torque the springs exert there, as far as static friction can (a plate
+    further than ~11 deg from limp-home is released from a state it cannot hold and starts moving).
+
+    ## Episode End
+
+    No termination (the plate cannot leave its stops). Truncation after ``episode_s`` of plant time
+    (default 3 s = 3000 steps). A non-finite plant state raises FloatingPointError.
+
+    ## Arguments
+
+    ``gym.make("ETB-3B-v0", **kwargs)``:
+
+    * ``model``: "1A".."3C" (set by the id); ignored when ``plant`` is given.
+    * ``reference``: the reference task: a name (``constant, step, steps, ramp, piecewise_linear, sine, chirp,
+      random_steps, pedal``), a dict ``{"name": ..., **params}`` or a ``references.Reference`` object.
+      Random ones are drawn anew from ``np_random`` at every reset (default ``"random_steps"``).
+    * ``episode_s`` (3.0), ``control_period_s`` (None = the plant's, 1 ms).
+    * ``observe_current`` (False), ``full_state`` (False): extra observation entries.
+    * ``sensor``: dict of ``PositionSensorParams`` overrides, e.g. ``{"noise_std_rad": 0.0}``.
+    * ``plant``: a plant file (.toml/.json, see docs/plant-file.md), a plant dict or a ``Plant``.
+    * ``params``: dict of ``"component.field"`` overrides applied to the plant (e.g.
+      ``{"friction.coulomb_Nm": 0.25}``).
+    * ``supply_V``: battery voltage (None = the plant's, 12 V); ``pwm_mode``: "averaged" or "switching".
+    * ``randomize``: False, True (all of ``DEFAULT_RANDOMIZATION``) or a dict ``{quantity: (low, high)}``
+      randomizing exactly the listed quantities: supply_V, coil_temperature_C, friction_scale, spring_scale,
+      inertia_scale, sensor_noise_std_deg. Draws are uniform, per episode, from ``np_random``.
+    * ``reward_weights``: dict with keys tracking, effort, chattering.
+    * ``render_mode``: None, "rgb_array" (HxWx3 uint8) or "human" (matplotlib window).
+
+    ## Reset options
+
+    ``env.reset(seed=..., options={...})``: ``angle_deg`` (initial plate angle at rest), ``reference`` (as the
+    argument), ``params`` (``"component.field"`` overrides for this episode only, applied before the
+    randomization), ``supply_V`` (this episode's battery voltage, overrides its randomization).
+
+    ## Info
+
+    Every ``reset`` and ``step`` returns floats: ``angle_deg``, ``sensed_angle_deg``, ``velocity_deg_s``,
+    ``current_A``, ``voltage_V`` (mean bridge voltage of the period), ``duty``, ``reference_deg``,
+    ``supply_V``, ``torque_electric_Nm``, ``torque_spring_Nm``, ``torque_friction_Nm``, ``torque_stops_Nm``,
+    ``torque_<effect>_Nm`` for each extra component of the plant, and ``t_s``.
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+
+    def __init__(self, model: str = "3B", reference: Any = "random_steps", episode_s: float = 3.0,
+                 control_period_s: float | None = None, observe_current: bool = False, full_state: bool = False,
+                 sensor: Mapping | None = None, plant: Any = None, params: Mapping | None = None,
+                 supply_V: float | None = None, pwm_mode: str | None = None, randomize: bool | Mapping = False,
+                 reward_weights: Mapping | None = None, render_mode: str | None = None, **kwargs):
+        if kwargs:
+            raise ValueError(f"ETBEnv: unknown argument(s) {sorted(kwargs)}; valid: {list(ENV_KWARGS)}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode = {render_mode!r}: expected None or one of {self.metadata['render_modes']}")
+        self.render_mode = render_mode
+        # ---- plant
+        if plant is not None:
+            p = load_plant_spec(plant)
+        else:
+            if str(model).strip().upper() not in MODELS:
+                raise ValueError(f"model = {model!r}: expected one of {list(MODELS)}")
+            p = make_plant(model)
+        if pwm_mode is not None and pwm_mode != p.supply.pwm_mode:
+            p = p.replace(supply=p.supply.replace(pwm_mode=pwm_mode))
+        if control_period_s is not None:
+            cp = _finite_number("control_period_s", control_period_s, 1e-6, 1.0, "a period in [1e-6, 1] s")
+            if cp != p.control_period_s:
+                p = p.replace(control_period_s=cp)
+        if params:
+            if not isinstance(params, Mapping):
+                raise ValueError(f"params = {params!r}: expected a dict of 'component.field' overrides")
+            p = p.with_params(dict(params))
+        self.plant = p
+        self.dt = p.control_period_s
+        self.episode_s = _finite_number("episode_s", episode_s, 0.0, math.inf, "a duration > 0 s")
+        self.max_steps = int(round(self.episode_s / self.dt))
+        if self.max_steps < 1:
+            raise ValueError(f"episode_s = {episode_s!r} is shorter than one control period ({self.dt} s)")
+        self.supply_V = p.supply.voltage_V if supply_V is None else \
+            _finite_number("supply_V", supply_V, 1e-9, math.inf, "a voltage > 0 V")
+        # ---- sensor (construction time only; the noise level may be randomized per episode)
+        if sensor is not None and not isinstance(sensor, Mapping):
+            raise ValueError(f"sensor = {sensor!r}: expected a dict of PositionSensorParams overrides")
+        self.sensor = PositionSensor(PositionSensorParams(), **dict(sensor or {}))
+        sp = self.sensor.params
+        self._gain, self._offset, self._q = sp.gain, sp.offset_rad, sp.resolution_rad
+        self._delay = sp.delay_steps
+        self._cur_std, self._cur_q = sp.current_noise_std_A, sp.current_resolution_A
+        # ---- reward
+        w = dict(DEFAULT_REWARD_WEIGHTS)
+        if reward_weights is not None:
+            if not isinstance(reward_weights, Mapping):
+                raise ValueError(f"reward_weights = {reward_weights!r}: expected a dict with keys "
+                                 f"{sorted(DEFAULT_REWARD_WEIGHTS)}")
+            bad = sorted(set(reward_weights) - set(w))
+            if bad:
+                raise ValueError(f"reward_weights: unknown key(s) {bad}; valid: {sorted(w)}")
+            for k, v in reward_weights.items():
+                w[k] = _finite_number(f"reward_weights[{k!r}]", v, 0.0, math.inf, "a finite weight >= 0")
+        self.reward_weights = w
+        self._wt, self._we, self._wc = w["tracking"] / TRACKING_SCALE_DEG, w["effort"], w["chattering"] * 0.25
+        # ---- randomization
+        self.randomization = self._check_randomization(randomize)
+        # ---- reference
+        self._reference_spec = reference
+        self._fixed_reference = None
+        self._table_cache: dict = {}
+        probe = self._build_reference(reference, np.random.default_rng(0))   # validates the spec now
+        if not self._is_random_spec(reference):
+            self._fixed_reference = probe
+        # ---- spaces
+        self.observe_current, self.full_state = bool(observe_current), bool(full_state)
+        self.state_scales = self._state_scales(p)
+        self._inv_scales = 1.0 / self.state_scales
+        n_obs = 4 + self.observe_current + (p.n_states if self.full_state else 0)
+        self.n_obs = n_obs
+        self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+        low = np.full(n_obs, -OBS_BOUND, np.float32)
+        low[3] = -1.0
+        self.observation_space = spaces.Box(low, -low, (n_obs,), np.float32)
+        self._obs_low, self._obs_high = self.observation_space.low, self.observation_space.high
+        # only a plant without end stops or the full state can leave the box: clip then (documented)
+        self._clip_obs = p.stops is None or self.full_state
+        # ---- constants of the stepper
+        fns = p.engine.fns
+        self._control_step, self._rhs = fns.control_step, fns.rhs
+        self._nsub, self._sw, self._fpwm = p.substeps, p.supply.switching, p.supply.pwm_frequency_hz
+        self._P_nominal = p.P.copy()
+        self._P_nominal.setflags(write=False)
+        self._nominal = p.params_dict()
+        self._t_grid = np.arange(self.max_steps + 1) * self.dt
+        self._x0_cache: dict = {}
+        self._dx = np.empty(p.n_states)
+        roles = {r: (p.component_names.index(r) if r in p.component_names else -1) for r in _ROLE_TORQUE_KEYS}
+        self._torque_index = tuple((_ROLE_TORQUE_KEYS[r], k) for r, k in roles.items())
+        self._effect_torques = tuple((f"torque_{n}_Nm", k) for k, n in enumerate(p.component_names)
+                                     if n not in _ROLE_TORQUE_KEYS)
+        self._lo_deg, self._hi_deg = p.angle_min_rad * RAD2DEG, p.angle_max_rad * RAD2DEG
+        self._default_angle_deg = p.limp_home_rad * RAD2DEG
+        # ---- episode state (set by reset)
+        self._x = p.initial_state()
+        self._aux = np.zeros(len(p.components))
+        self._k = 0
+        self._episode = None
+        self._renderer = None
+        self._hist = None
+
+    # ------------------------------------------------------------------------------ configuration helpers
+    @staticmethod
+    def _state_scales(p: Plant) -> np.ndarray:
+        """Scale of each state for the full-state observation: angle pi/2 rad, velocity 50 rad/s, current 10 A,
+        friction bristle deflection T_s/sigma0 (the presliding range), any other state 1."""
+        scales = np.ones(p.n_states)
+        scales[0], scales[1], scales[2] = math.pi / 2, 50.0, obsmod.CURRENT_SCALE_A
+        lay = p.engine.layout
+        for k, c in enumerate(p.components):
+            s0, s1 = lay.state_slices[k]
+            q = c.params
+            if s1 > s0 and hasattr(q, "bristle_stiffness_Nm_per_rad"):
+                top = getattr(q, "static_Nm", getattr(q, "coulomb_Nm", 0.0))
+                if top > 0:
+                    scales[s0:s1] = top / q.bristle_stiffness_Nm_per_rad
+        return scales
+
+    def _check_randomization(self, randomize):
+        if randomize is False or randomize is None:
+            return {}
+        if randomize is True:
+            return dict(DEFAULT_RANDOMIZATION)
+        if not isinstance(randomize, Mapping):
+            raise ValueError(f"randomize = {randomize!r}: expected False, True or a dict {{quantity: (low, high)}} "
+                             f"with quantities from {list(DEFAULT_RANDOMIZATION)}")
+        out = {}
+        for k, v in randomize.items():
+            if k not in DEFAULT_RANDOMIZATION:
+                raise ValueError(f"randomize: unknown quantity {k!r}; valid: {list(DEFAULT_RANDOMIZATION)}")
+            try:
+                lo, hi = (float(x) for x in v)
+            except (TypeError, ValueError):
+                raise ValueError(f"randomize[{k!r}] = {v!r}: expected a (low, high) pair of numbers") from None
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+                raise ValueError(f"randomize[{k!r}] = {v!r}: expected finite low <= high")
+            if k != "coil_temperature_C" and lo < 0:
+                raise ValueError(f"randomize[{k!r}] = {v!r}: expected non-negative bounds")
+            if k in ("supply_V", "inertia_scale") and lo <= 0:
+                raise ValueError(f"randomize[{k!r}] = {v!r}: expected bounds > 0")
+            if k == "coil_temperature_C" and lo <= RESISTANCE_REFERENCE_C - 1 / COPPER_ALPHA_PER_K:
+                raise ValueError(f"randomize[{k!r}] = {v!r}: expected temperatures above "
+                                 f"{RESISTANCE_REFERENCE_C - 1 / COPPER_ALPHA_PER_K:.0f} C (R > 0)")
+            out[k] = (lo, hi)
+        return {k: out[k] for k in DEFAULT_RANDOMIZATION if k in out}   # canonical draw order
+
+    @staticmethod
+    def _is_random_spec(spec) -> bool:
+        if isinstance(spec, str):
+            return spec in RANDOM_REFERENCES
+        if isinstance(spec, Mapping):
+            return spec.get("name") in RANDOM_REFERENCES
+        return False
+
+    def _build_reference(self, spec, rng) -> Reference:
+        if isinstance(spec, (str, Mapping)):
+            d = {"name": spec} if isinstance(spec, str) else dict(spec)
+            if d.get("name") in RANDOM_REFERENCES + ("chirp",):
+                d.setdefault("duration_s", self.episode_s)
+            if "name" not in d:
+                return as_reference(d)   # raises the helpful error
+            name = d.pop("name")
+            return make_reference(name, rng=rng, **d)
+        return as_reference(spec, rng)
+
+    def _ref_table(self, ref: Reference) -> np.ndarray:
+        hit = self._table_cache.get(id(ref))
+        if hit is not None and hit[0] is ref:
+            return hit[1]
+        tab = np.asarray(ref.table(self._t_grid), dtype=float)
+        if tab.shape != self._t_grid.shape or not np.all(np.isfinite(tab)):
+            raise ValueError(f"reference {ref!r} gave non-finite or misshaped values over the episode")
+        lo, hi = self._lo_deg - REFERENCE_MARGIN_DEG, self._hi_deg + REFERENCE_MARGIN_DEG
+        if tab.min() < lo or tab.max() > hi:
+            raise ValueError(f"reference {ref!r} leaves [{lo:g}, {hi:g}] deg (range {tab.min():g}..{tab.max():g} "
+                             f"deg): expected set points within the end stops +- {REFERENCE_MARGIN_DEG:g} deg")
+        if len(self._table_cache) > 16:
+            self._table_cache.clear()
+        self._table_cache[id(ref)] = (ref, tab)
+        return tab
+
+    def _initial_state(self, angle_deg: float) -> np.ndarray:
+        x0 = self._x0_cache.get(angle_deg)
+        if x0 is None:
+            x0 = self.plant.initial_state(angle_deg / RAD2DEG)
+            if len(self._x0_cache) > 64:
+                self._x0_cache.clear()
+            self._x0_cache[angle_deg] = x0
+        return x0
+
+    def draw_episode(self, rng: np.random.Generator, options: Mapping | None = None) -> Episode:
+        """Everything a reset decides, drawn from ``rng`` in a fixed order (randomization, then reference).
+        Shared by the single env and the vector env so that both draw identically."""
+        opts = {} if options is None else options
+        if not isinstance(opts, Mapping):
+            raise ValueError(f"reset options = {opts!r}: expected a dict with keys from {list(RESET_OPTIONS)}")
+        if opts:
+            bad = sorted(set(opts) - set(RESET_OPTIONS))
+            if bad:
+                raise ValueError(f"reset: unknown option(s) {bad}; valid: {list(RESET_OPTIONS)}")
+        angle = opts.get("angle_deg")
+        if angle is None:
+            angle = self._default_angle_deg
+        else:
+            angle = _finite_number("options['angle_deg']", angle, self._lo_deg, self._hi_deg,
+                                   f"an angle within the end stops [{self._lo_deg:g}, {self._hi_deg:g}] deg")
+        overrides = {}
+        params = opts.get("params")
+        if params:
+            if not isinstance(params, Mapping):
+                raise ValueError(f"options['params'] = {params!r}: expected a dict of 'component.field' overrides")
+            for key in params:
+                if isinstance(key, str) and key.startswith("supply."):
+                    raise ValueError(f"options['params'][{key!r}]: the supply is set per episode with "
+                                     "options['supply_V'] (and at construction with supply_V= / pwm_mode=)")
+            overrides.update(params)
+        V = self.supply_V
+        noise = self.sensor.params.noise_std_rad
+        draws = {}
+        if self.randomization:
+            for k, (lo, hi) in self.randomization.items():
+                draws[k] = float(rng.uniform(lo, hi))
+            self._apply_draws(draws, overrides)
+            if "supply_V" in draws:
+                V = draws["supply_V"]
+            if "sensor_noise_std_deg" in draws:
+                noise = draws["sensor_noise_std_deg"] / RAD2DEG
+        if opts.get("supply_V") is not None:
+            V = _finite_number("options['supply_V']", opts["supply_V"], 1e-9, math.inf, "a voltage > 0 V")
+        P = self.plant.param_vector(overrides) if overrides else self._P_nominal
+        spec = opts.get("reference")
+        if spec is None:
+            ref = self._fixed_reference if self._fixed_reference is not None \
+                else self._build_reference(self._reference_spec, rng)
+        else:
+            ref = self._build_reference(spec, rng)
+        return Episode(P, V, self._initial_state(angle), ref, self._ref_table(ref), noise, draws)
+
+    def _apply_draws(self, draws, overrides):
+        p, nom = self.plant, self._nominal
+
+        def cur(key):
+            return float(overrides.get(key, nom[key]))
+
+        if "coil_temperature_C" in draws and "drive.resistance_ohm" in nom:
+            T = draws["coil_temperature_C"]
+            overrides["drive.resistance_ohm"] = cur("drive.resistance_ohm") * (
+                1.0 + COPPER_ALPHA_PER_K * (T - RESISTANCE_REFERENCE_C))
+        for key, role, fields in (("friction_scale", "friction", FRICTION_FIELDS),
+                                  ("spring_scale", "spring", SPRING_FIELDS)):
+            if key in draws and getattr(p, role) is not None:
+                for f in fields:
+                    name = f"{role}.{f}"
+                    if name in nom:
+                        overrides[name] = cur(name) * draws[key]
+        if "inertia_scale" in draws:
+            overrides["rotor.inertia_kg_m2"] = cur("rotor.inertia_kg_m2") * draws["inertia_scale"]
+
+    # ------------------------------------------------------------------------------ sensing
+    def _read_angle(self, phi):
+        """Sensed angle [rad]: the PositionSensor equation q * round((gain * phi_delayed + offset + n) / q)
+        (etb_gym.components.sensor; scalar form for speed, tested equal to PositionSensor.transform)."""
+        if self._delay:
+            buf, j = self._dbuf, self._dpos
+            old = buf[j]
+            buf[j] = phi
+            self._dpos = (j + 1) % len(buf)
+            phi = old
+        pos = self._npos
+        if pos == NOISE_BLOCK:
+            self._noise = self.np_random.standard_normal((NOISE_BLOCK, 2))
+            pos = 0
+        self._npos = pos + 1
+        v = self._gain * phi + self._offset + self._noise_std * self._noise.item(pos, 0)
+        q = self._q
+        if q > 0.0:
+            v = q * round(v / q)
+        return v, pos
+
+    def _read_current(self, i, pos):
+        v = i + self._cur_std * self._noise.item(pos, 1)
+        q = self._cur_q
+        return q * round(v / q) if q > 0.0 else v
+
+    # ------------------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        ep = self.draw_episode(self.np_random, options)
+        self._episode = ep
+        self._P, self._V, self._ref, self._tab = ep.P, ep.supply_V, ep.reference, ep.ref_table
+        self._noise_std = ep.noise_std_rad
+        x = self._x = ep.x0.copy()
+        self._k = 0
+        self._duty = 0.0
+        self._rhs(0.0, x, 0.0, ep.P, self._dx, self._aux)
+        phi = x.item(0)
+        if self._delay:
+            self._dbuf = [phi] * (self._delay + 1)
+            self._dpos = 0
+        self._noise = self.np_random.standard_normal((NOISE_BLOCK, 2))
+        self._npos = 0
+        r = self._tab.item(0)
+        obs, info = self._observe(x, r, 0.0, 0.0)
+        if self.render_mode is not None:
+            self._start_history()
+            if self.render_mode == "human":
+                self.render()
+        return obs, info
+
+    def _observe(self, x, r, d, t):
+        phi, omega, i = x.item(0), x.item(1), x.item(2)
+        sensed, pos = self._read_angle(phi)
+        s_deg = sensed * RAD2DEG
+        obs = np.empty(self.n_obs, np.float32)
+        if self.observe_current:
+            obsmod.encode_into(obs, s_deg, r, d, self._read_current(i, pos))
+        else:
+            obsmod.encode_into(obs, s_deg, r, d)
+        if self.full_state:
+            obs[self.n_obs - x.size:] = x * self._inv_scales
+        if self._clip_obs:
+            np.minimum(obs, self._obs_high, out=obs)
+            np.maximum(obs, self._obs_low, out=obs)
+        aux = self._aux
+        info = {"angle_deg": phi * RAD2DEG, "sensed_angle_deg": s_deg, "velocity_deg_s": omega * RAD2DEG,
+                "current_A": i, "voltage_V": d * self._V, "duty": d, "reference_deg": r, "supply_V": self._V}
+        for key, k in self._torque_index:
+            info[key] = aux.item(k) if k >= 0 else 0.0
+        for key, k in self._effect_torques:
+            info[key] = aux.item(k)
+        info["t_s"] = t
+        return obs, info
+
+    def _coerce_action(self, action) -> float:
+        a = np.asarray(action, dtype=float)
+        if a.size != 1:
+            raise ValueError(f"action {action!r} has {a.size} entries: expected one duty cycle (shape (1,))")
+        return float(a.reshape(-1)[0])
+
+    def step(self, action):
+        if self._episode is None:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        if type(action) is np.ndarray and action.shape == (1,):
+            d = float(action[0])
+        else:
+            d = self._coerce_action(action)
+        if not -1.0 <= d <= 1.0:
+            if not math.isfinite(d):
+                raise ValueError(f"action = {d!r}: expected a finite duty cycle in [-1, 1]")
+            d = 1.0 if d > 1.0 else -1.0
+        k, dt, x = self._k, self.dt, self._x
+        if not self._control_step(x, d, self._V, self._P, k * dt, dt, self._nsub, self._sw, self._fpwm, self._aux):
+            raise FloatingPointError(f"ETB plant state became non-finite at t = {(k + 1) * dt:.6f} s: "
+                                     f"{dict(zip(self.plant.state_names, x.tolist()))}")
+        k += 1
+        self._k = k
+        r = self._tab.item(k) if k <= self.max_steps else self._ref((k) * dt)
+        e = r - x.item(0) * RAD2DEG
+        dd = d - self._duty
+        reward = -(self._wt * abs(e) + self._we * (d * d) + self._wc * (dd * dd))
+        self._duty = d
+        obs, info = self._observe(x, r, d, k * dt)
+        if self._hist is not None:
+            self._record(k, info)
+            if self.render_mode == "human":
+                self.render()
+        return obs, reward, False, k >= self.max_steps, info
+
+    # ------------------------------------------------------------------------------ rendering
+    def _start_history(self):
+        n = self.max_steps + 1
+        self._hist = np.full((3, n), np.nan)
+        self._hist_k = 0
+        self._record(0, None)
+
+    def _record(self, k, info):
+        if k < self._hist.shape[1]:
+            self._hist[0, k] = self._x.item(0) * RAD2DEG
+            self._hist[1, k] = self._tab.item(k)
+            self._hist[2, k] = self._duty
+            self._hist_k = k
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human' to "
+                            "gym.make")
+            return None
+        if self._hist is None:
+            raise gym.error.ResetNeeded("call reset() before render()")
+        if self._renderer is None:
+            from .rendering import ETBRenderer
+
+            self._renderer = ETBRenderer(self.episode_s, self._lo_deg, self._hi_deg,
+                                         self.plant.limp_home_rad * RAD2DEG, human=self.render_mode == "human",
+                                         fps=self.metadata["render_fps"])
+        k = self._hist_k
+        frame = self._renderer.draw(self._t_grid[: k + 1], self._hist[0, : k + 1], self._hist[1, : k + 1],
+                                    self._hist[2, : k + 1], self.model_name)
+        return None if self.render_mode == "human" else frame
+
+    @property
+    def model_name(self) -> str:
+        return self.plant.model or "custom plant"
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
