@@ -1,0 +1,68 @@
+"""The native vector env equals N single envs (SyncVectorEnv) step for step, including autoreset."""
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import etb_gym  # noqa: F401
+from etb_gym.envs.vector import ETBVectorEnv
+
+
+def _compare(kw, n_envs=3, n_steps=None, seed=11, options=None):
+    nat = gym.make_vec("ETB-3B-v0", num_envs=n_envs, **kw)
+    syn = gym.make_vec("ETB-3B-v0", num_envs=n_envs, vectorization_mode="sync", **kw)
+    assert isinstance(nat.unwrapped, ETBVectorEnv)
+    assert nat.single_observation_space == syn.single_observation_space
+    assert nat.action_space == syn.action_space
+    o1, i1 = nat.reset(seed=seed, options=options)
+    o2, i2 = syn.reset(seed=seed, options=options)
+    _same(o1, o2, i1, i2)
+    n_steps = n_steps or nat.unwrapped.env.max_steps + 3
+    rng = np.random.default_rng(5)
+    saw_reset = False
+    for t in range(n_steps):
+        a = rng.uniform(-1.3, 1.3, (n_envs, 1)).astype(np.float32)
+        r1 = nat.step(a)
+        r2 = syn.step(a)
+        for x, y in zip(r1[:4], r2[:4]):
+            assert np.array_equal(x, y), f"step {t}"
+            assert x.dtype == y.dtype
+        _same(r1[0], r2[0], r1[4], r2[4])
+        saw_reset |= bool(np.any(r1[4]["t_s"] == 0.0)) and t > 0
+    return saw_reset
+
+
+def _same(o1, o2, i1, i2):
+    assert np.array_equal(o1, o2)
+    assert set(i1) == set(i2)
+    for k in i1:
+        assert np.array_equal(i1[k], i2[k]), k
+        assert i1[k].dtype == i2[k].dtype, k
+
+
+def test_vector_equals_sync_with_autoreset():
+    # short episodes so that next-step autoreset (and its reward 0 / reset obs) is exercised twice
+    saw = _compare(dict(episode_s=0.15, randomize=True, observe_current=True), n_envs=3, n_steps=320)
+    assert saw
+
+
+def test_vector_equals_sync_delay_quantized_current_full_state():
+    kw = dict(episode_s=0.3, reference="pedal", full_state=True, observe_current=True,
+              sensor={"delay_steps": 2, "current_resolution_A": 0.01, "noise_std_rad": 1e-3})
+    _compare(kw, n_envs=2, n_steps=310, options={"angle_deg": 20.0, "params": {"friction.coulomb_Nm": 0.15}})
+
+
+def test_vector_seed_list_reset_mask_and_errors():
+    env = gym.make_vec("ETB-1A-v0", num_envs=4, episode_s=0.05)
+    obs, info = env.reset(seed=[3, 4, 5, 6])
+    single = gym.make("ETB-1A-v0", episode_s=0.05)
+    o, _ = single.reset(seed=5)
+    assert np.array_equal(obs[2], o)
+    obs2, info2 = env.reset(options={"reset_mask": np.array([False, True, False, False])})
+    assert info2["_angle_deg"].tolist() == [False, True, False, False]
+    assert np.array_equal(obs2[0], obs[0])
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([[0.0], [np.nan], [0.0], [0.0]], np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros((3, 1), np.float32))
+    with pytest.raises(ValueError, match="unknown argument"):
+        gym.make_vec("ETB-1A-v0", num_envs=2, speed=3)
