@@ -9,5 +9,6 @@ from .sensor import PositionSensor, PositionSensorParams
 from .spring import LimpHomeSpring, LimpHomeSpringParams
 from .stops import EndStops, EndStopsParams
 from .supply import PWM_MODES, SupplyParams
+from . import effects  # noqa: E402,F401  registers the diagnosis effects (kinds effect.*) for plant files
 
 __all__ = [n for n in dir() if not n.startswith("_")]

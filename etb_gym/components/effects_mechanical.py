@@ -1,0 +1,153 @@
+"""Candidate mechanical effects (diagnosis library, docs/diagnosis.md): torques added to the shaft.
+
+The spring and stop corrections reuse the core kernels (spring.py, stops.py), so the equation of a
+spring or a stop exists once; their ``nominal_*``/tied fields repeat the plant's own spring/stop
+parameters (the diagnosis keeps them equal when it refits the nominal parameters):
+
+    spring_asymmetry     below limp-home (d = phi - phi_LH < 0) the closing spring has preload
+                         T_SP0 + dT_SP0 and rate R_F + dR_F:  T += spring_kernel(phi; dT_SP0, dR_F) for d < 0
+    backlash             free play +-b between the spring arms around limp-home: the springs act as if
+                         at d' = d - b*sign(d) (|d| > b), not at all within the play:
+                         T += spring_kernel(phi_LH + d') - spring_kernel(phi)
+    end_stop_compliance  stops at other angles / stiffness: T += stops_kernel(new) - stops_kernel(nominal)
+    airflow_torque       T = c2 x^2 + c3 x^3,  x = phi / (pi/2)  (aerodynamic torque of the air flow)
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from ..jit import kernel
+from .base import non_negative, positive
+from .base import Params
+from .effects_electrical import Effect
+from .spring import limp_home_spring_kernel
+from .stops import end_stops_kernel
+
+
+# ------------------------------------------------------------------------------------ spring asymmetry
+@dataclasses.dataclass(frozen=True)
+class SpringAsymmetryParams(Params):
+    # field order = the spring kernel's vector [phi_LH, T_SP0, R_F, eps, c_LH]
+    limp_home_rad: float = math.radians(3.0)         # tied: spring.limp_home_rad
+    closing_preload_delta_Nm: float = 0.0            # dT_SP0 below limp-home
+    closing_rate_delta_Nm_per_rad: float = 0.0       # dR_F below limp-home
+    limp_home_compliance_rad: float = 3e-3           # tied: spring.limp_home_compliance_rad
+    closing_damping_delta_Nm_s_per_rad: float = 0.0
+
+    def validate(self):
+        positive("SpringAsymmetryParams", self, "limp_home_compliance_rad")
+
+
+@kernel
+def spring_asymmetry_kernel(t, phi, omega, i, u, s, p, ds):
+    # the extra closing spring acts below limp-home only
+    if phi >= p[0]:
+        return 0.0, 0.0, 0.0
+    tq, e, l = limp_home_spring_kernel(t, phi, omega, i, u, s, p, ds)
+    return tq, 0.0, 0.0
+
+
+class SpringAsymmetry(Effect):
+    kind = "effect.spring_asymmetry"
+    effect_id = "spring_asymmetry"
+    Params = SpringAsymmetryParams
+    kernel = staticmethod(spring_asymmetry_kernel)
+    description = "spring preload or rate differs below and above limp-home"
+
+
+# ------------------------------------------------------------------------------------ backlash
+@dataclasses.dataclass(frozen=True)
+class BacklashParams(Params):
+    play_rad: float = 0.0                            # b: half-width of the free play
+    limp_home_rad: float = math.radians(3.0)         # tied to the plant's spring
+    preload_Nm: float = 0.15
+    rate_Nm_per_rad: float = 0.36
+    limp_home_compliance_rad: float = 3e-3
+    limp_home_damping_Nm_s_per_rad: float = 0.039
+
+    def validate(self):
+        n = "BacklashParams"
+        non_negative(n, self, "play_rad", "preload_Nm", "rate_Nm_per_rad", "limp_home_damping_Nm_s_per_rad")
+        positive(n, self, "limp_home_compliance_rad")
+
+
+@kernel
+def backlash_kernel(t, phi, omega, i, u, s, p, ds):
+    # p = [b, phi_LH, T_SP0, R_F, eps, c_LH]; the last five are the spring's own vector
+    q = p[1:6]
+    d = phi - p[1]
+    b = p[0]
+    if d > b:
+        shifted = phi - b
+    elif d < -b:
+        shifted = phi + b
+    else:
+        shifted = p[1]
+    t1, e1, l1 = limp_home_spring_kernel(t, shifted, omega, i, u, s, q, ds)
+    t0, e0, l0 = limp_home_spring_kernel(t, phi, omega, i, u, s, q, ds)
+    return t1 - t0, 0.0, 0.0
+
+
+class Backlash(Effect):
+    kind = "effect.backlash"
+    effect_id = "backlash"
+    Params = BacklashParams
+    kernel = staticmethod(backlash_kernel)
+    description = "free play around limp-home (the return springs engage late)"
+
+
+# ------------------------------------------------------------------------------------ end stops
+@dataclasses.dataclass(frozen=True)
+class EndStopComplianceParams(Params):
+    closed_rad: float = 0.0                          # true stop positions and contact
+    open_rad: float = math.radians(90.0)
+    stiffness_Nm_per_rad: float = 1000.0
+    damping_Nm_s_per_rad: float = 0.1
+    nominal_closed_rad: float = 0.0                  # tied: the plant's stops
+    nominal_open_rad: float = math.radians(90.0)
+    nominal_stiffness_Nm_per_rad: float = 1000.0
+    nominal_damping_Nm_s_per_rad: float = 0.1
+
+    def validate(self):
+        n = "EndStopComplianceParams"
+        positive(n, self, "stiffness_Nm_per_rad", "nominal_stiffness_Nm_per_rad")
+        non_negative(n, self, "damping_Nm_s_per_rad", "nominal_damping_Nm_s_per_rad")
+
+
+@kernel
+def end_stop_compliance_kernel(t, phi, omega, i, u, s, p, ds):
+    t1, e1, l1 = end_stops_kernel(t, phi, omega, i, u, s, p[0:4], ds)
+    t0, e0, l0 = end_stops_kernel(t, phi, omega, i, u, s, p[4:8], ds)
+    return t1 - t0, 0.0, 0.0
+
+
+class EndStopCompliance(Effect):
+    kind = "effect.end_stop_compliance"
+    effect_id = "end_stop_compliance"
+    Params = EndStopComplianceParams
+    kernel = staticmethod(end_stop_compliance_kernel)
+    description = "end stops softer or at other angles than modelled"
+
+
+# ------------------------------------------------------------------------------------ airflow
+@dataclasses.dataclass(frozen=True)
+class AirflowTorqueParams(Params):
+    quadratic_Nm: float = 0.0                        # c2 (opening positive)
+    cubic_Nm: float = 0.0                            # c3
+
+
+@kernel
+def airflow_torque_kernel(t, phi, omega, i, u, s, p, ds):
+    x = phi / (0.5 * math.pi)
+    if x < 0.0:
+        x = 0.0
+    return x * x * (p[0] + p[1] * x), 0.0, 0.0
+
+
+class AirflowTorque(Effect):
+    kind = "effect.airflow_torque"
+    effect_id = "airflow_torque"
+    Params = AirflowTorqueParams
+    kernel = staticmethod(airflow_torque_kernel)
+    description = "aerodynamic torque of the air flow on the plate"

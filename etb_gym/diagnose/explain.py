@@ -1,0 +1,143 @@
+"""Explain a mismatch: add each candidate to the calibrated model, refit, score, keep the best, repeat.
+
+One round:
+  1. screen   every remaining candidate is added and all parameters (nominal + effects) refitted from the
+              current estimate (a bounded number of evaluations); dBIC = m_eff ln(RSS_c/RSS) + dp ln(m_eff)
+              with m_eff = m / tau_int of the candidate's residual
+  2. validate the TOP_K candidates with dBIC < -BIC_MIN are cross-validated over two folds of alternating
+              time blocks (fit on one, score the other); the current model is cross-validated the same way
+  3. accept   the candidate with the lowest held-out error, if it beats the current model's held-out error
+              by at least CV_MIN_GAIN; otherwise stop: nothing in the library explains what remains
+Rounds repeat (two or more concurrent effects) while the remaining residual is significant.
+Candidates run in a process pool (fork) when ``jobs > 1``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import multiprocessing as mp
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from ..plant import Plant
+from . import fit as F
+from .candidates import CANDIDATES
+from .model import Data, Spec
+
+BIC_MIN = 10.0
+CV_MIN_GAIN = 0.10
+TOP_K = 3
+SCREEN_NFEV = 12
+FULL_NFEV = 40
+
+_CTX: dict = {}
+
+
+def _spec(base_dict, nominal, ids) -> Spec:
+    key = (repr(base_dict), ids)
+    cache = _CTX.setdefault("plants", {})
+    if key not in cache:
+        cache[key] = Plant.from_dict(base_dict)
+    return Spec(cache[key], tuple(CANDIDATES[c] for c in ids), nominal)
+
+
+def _task(args):
+    kind, base_dict, nominal, ids, x0, nfev = args
+    data = _CTX["data"]
+    spec = _spec(base_dict, nominal, ids)
+    if kind == "fit":
+        fr = F.fit(spec, data, x0, max_nfev=nfev)
+        return fr.x, fr.rss, fr.m, fr.jac, fr.nfev, fr.tau_int
+    return F.cross_validate(spec, data, x0, max_nfev=nfev)
+
+
+@dataclasses.dataclass
+class Step:
+    id: str
+    fit: F.FitResult
+    dbic: float
+    cv_gain: float
+
+
+class Runner:
+    """Runs fits here or in a forked process pool sharing the data."""
+
+    def __init__(self, data: Data, jobs: int = 1):
+        _CTX["data"] = data
+        self.data = data
+        self.pool = None
+        if jobs > 1 and "fork" in mp.get_all_start_methods():
+            self.pool = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("fork"))
+
+    def map(self, tasks, progress=None):
+        it = self.pool.map(_task, tasks) if self.pool is not None else map(_task, tasks)
+        out = []
+        for r in it:
+            out.append(r)
+            if progress is not None:
+                progress.update(1)
+        return out
+
+    def close(self):
+        if self.pool is not None:
+            self.pool.shutdown()
+
+
+def dbic(new: F.FitResult, old: F.FitResult) -> float:
+    me = new.m / max(new.tau_int, 1.0)
+    return me * math.log(max(new.rss, 1e-300) / max(old.rss, 1e-300)) + (len(new.x) - len(old.x)) * math.log(me)
+
+
+def extend(x_old: np.ndarray, spec: Spec) -> np.ndarray:
+    return np.concatenate([x_old, np.zeros(len(spec.params) - len(x_old))])
+
+
+def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, significant, max_effects: int = 3,
+           progress=None, log=print) -> tuple[F.FitResult, list]:
+    """Greedy forward selection of effects; returns the final fit and the accepted steps in order."""
+    steps = []
+    base = cur.spec.base
+    base_dict = base.to_dict()
+    nominal = cur.spec.nominal
+    for rnd in range(max_effects):
+        if not significant(cur):
+            break
+        active = tuple(c.id for c in cur.spec.candidates)
+        remaining = [c for c in candidate_ids if c not in active and CANDIDATES[c].fit]
+        if not remaining:
+            break
+        tasks = []
+        for c in remaining:
+            spec = cur.spec.with_candidate(CANDIDATES[c])
+            tasks.append(("fit", base_dict, nominal, active + (c,), extend(cur.x, spec), SCREEN_NFEV))
+        if progress is not None:
+            progress.set_description(f"round {rnd + 1}: screening {len(tasks)} candidates")
+        res = runner.map(tasks, progress)
+        screened = []
+        for c, (x, rss, m, jac, nfev, tau) in zip(remaining, res):
+            spec = cur.spec.with_candidate(CANDIDATES[c])
+            fr = F.FitResult(spec, x, rss, m, jac, nfev, tau)
+            screened.append((dbic(fr, cur), c, fr))
+        screened.sort(key=lambda s: s[0])
+        log("  screening: " + ", ".join(f"{c} dBIC {d:+.0f}" for d, c, _ in screened[:5]))
+        top = [s for s in screened[:TOP_K] if s[0] < -BIC_MIN]
+        if not top:
+            break
+        if progress is not None:
+            progress.set_description(f"round {rnd + 1}: cross-validating {len(top)} + current")
+        cv_tasks = [("cv", base_dict, nominal, active, cur.x, SCREEN_NFEV)]
+        cv_tasks += [("cv", base_dict, nominal, active + (c,), fr.x, SCREEN_NFEV) for _, c, fr in top]
+        cvs = runner.map(cv_tasks, progress)
+        cv0 = cvs[0]
+        gains = [(1.0 - cv / cv0 if cv0 > 0 else 0.0, d, c, fr) for cv, (d, c, fr) in zip(cvs[1:], top)]
+        log("  held-out: " + ", ".join(f"{c} {g:+.0%}" for g, _, c, _ in gains))
+        gains = [g for g in gains if g[0] >= CV_MIN_GAIN]
+        if not gains:
+            break
+        g, d, c, fr = max(gains, key=lambda s: s[0])
+        x, rss, m, jac, nfev, tau = runner.map([("fit", base_dict, nominal, active + (c,), fr.x, FULL_NFEV)])[0]
+        full = F.FitResult(fr.spec, x, rss, m, jac, nfev, tau)
+        steps.append(Step(c, full, dbic(full, cur), g))
+        cur = full
+    return cur, steps

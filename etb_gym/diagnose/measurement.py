@@ -1,0 +1,129 @@
+"""The measurement side: sensor transforms, resolution detection, rest runs and the noise floor.
+
+Sensor effects act on the reading, not on the plate (sensor.py holds the core equation):
+
+    y(t) = q * round((g * phi(t - tau) + y_0) / q)       angle in degrees at this documented edge
+
+g gain, y_0 offset [deg], tau delay [s] (fractional: linear interpolation between samples), q resolution
+(0 = none). The diagnosis fits g, y_0 and tau by output error like any other parameter; q is read off
+the recorded values (``detect_resolution``), since rounding has no useful derivative.
+
+Noise floor: while friction holds the plate still the true angle is constant, so the spread of the
+reading about its mean inside such *rest runs* is the sensor noise, coloured or not, plus quantization.
+Without rest runs it falls back to the second-difference estimate sigma^2 = E[(y[k+1] - 2y[k] + y[k-1])^2]/6.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..components.sensor import PositionSensor, PositionSensorParams
+
+DEFAULT_RESOLUTION_DEG = 90.0 / 4096      # PositionSensorParams default: 12 bits over 90 deg
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorModel:
+    """What the diagnosis assumes about the angle sensor (degrees at this edge)."""
+
+    offset_deg: float = 0.0
+    gain: float = 1.0
+    delay_s: float = 0.0
+    resolution_deg: float = 0.0
+
+    def apply(self, t_s: np.ndarray, angle_deg: np.ndarray, quantize: bool = False) -> np.ndarray:
+        """The reading for a true angle trajectory sampled at ``t_s``."""
+        a = np.asarray(angle_deg, float)
+        if self.delay_s > 0.0:
+            a = np.interp(t_s - self.delay_s, t_s, a)          # holds a[0] before the start
+        sensor = PositionSensor(PositionSensorParams(
+            noise_std_rad=0.0, resolution_rad=math.radians(self.resolution_deg) if quantize else 0.0,
+            offset_rad=math.radians(self.offset_deg), gain=self.gain))
+        return np.degrees(sensor.transform(np.radians(a), 0.0))
+
+    def invert(self, reading_deg: float) -> float:
+        """The true angle of a reading at rest (delay does not matter at rest)."""
+        return (reading_deg - self.offset_deg) / self.gain
+
+
+def detect_resolution(y: np.ndarray, rel_tol: float = 0.08) -> float:
+    """The grid step of quantized readings (0.0 if the values do not lie on a grid)."""
+    y = np.asarray(y, float)
+    dy = np.abs(np.diff(y))
+    dy = dy[dy > 1e-9 * max(1.0, float(np.max(np.abs(y))))]
+    if dy.size < 10:
+        return 0.0
+    q = float(np.percentile(dy, 1))
+    if q <= 0:
+        return 0.0
+    # refine: the step is the smallest cluster of differences
+    small = dy[dy < 1.5 * q]
+    q = float(np.median(small))
+    k = np.round(dy / q)
+    if np.median(np.abs(dy / q - k)) > rel_tol:
+        return 0.0
+    frac = (y - y[0]) / q
+    if np.median(np.abs(frac - np.round(frac))) > rel_tol:
+        return 0.0
+    return q
+
+
+def smooth(y: np.ndarray, n: int) -> np.ndarray:
+    """Centred moving average over ``n`` samples (edges shrink the window)."""
+    n = max(1, int(n))
+    c = np.cumsum(np.concatenate([[0.0], y]))
+    k = np.arange(y.size)
+    lo = np.clip(k - n // 2, 0, y.size)
+    hi = np.clip(k + n // 2 + 1, 0, y.size)
+    return (c[hi] - c[lo]) / (hi - lo)
+
+
+def rest_runs(t_s: np.ndarray, y_deg: np.ndarray, band_deg: float, min_len: int = 40) -> list[tuple[int, int]]:
+    """Runs [a, b) in which the reading stays inside +-band_deg of the run's running median: the plate
+    is held by friction (or a stop). Found greedily from left to right."""
+    ys = smooth(y_deg, 9)
+    runs = []
+    a = 0
+    n = y_deg.size
+    while a < n:
+        b = a + 1
+        lo = hi = ys[a]
+        while b < n:
+            lo2, hi2 = min(lo, ys[b]), max(hi, ys[b])
+            if hi2 - lo2 > 2 * band_deg:
+                break
+            lo, hi = lo2, hi2
+            b += 1
+        if b - a >= min_len:
+            runs.append((a, b))
+            a = b
+        else:
+            a += max(1, (b - a) // 2)
+    return runs
+
+
+def second_difference_sigma(y: np.ndarray) -> float:
+    d2 = y[2:] - 2 * y[1:-1] + y[:-2]
+    d2 = d2[np.abs(d2) <= np.percentile(np.abs(d2), 95)]     # motion and contacts out
+    return float(math.sqrt(np.mean(d2 ** 2) / 6.0)) if d2.size else 0.0
+
+
+def noise_floor(t_s: np.ndarray, y_deg: np.ndarray, resolution_deg: float) -> tuple[float, list]:
+    """(sigma_deg, rest runs): the standard deviation of the reading about the true angle."""
+    s_d2 = second_difference_sigma(y_deg)
+    band = max(4.0 * s_d2, 1.5 * resolution_deg, 1e-3)
+    runs = rest_runs(t_s, y_deg, band)
+    if runs:
+        v = []
+        for a, b in runs:
+            seg = y_deg[a:b]
+            k = np.arange(b - a)
+            coef = np.polyfit(k, seg, 1)                    # presliding creep removed
+            v.append(float(np.sum((seg - np.polyval(coef, k)) ** 2)) / max(b - a - 2, 1))
+        s = math.sqrt(float(np.median(v)))                  # runs with hidden slow motion do not count
+    else:
+        s = s_d2
+    # quantization error is part of the floor even when the held reading does not flicker
+    return math.sqrt(max(s ** 2, resolution_deg ** 2 / 12.0)), runs

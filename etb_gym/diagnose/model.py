@@ -1,0 +1,212 @@
+"""A calibratable model: nominal plant + active candidates, a parameter vector, and segment-wise simulation.
+
+Output error with segment-wise re-initialization: each recording is cut at the ends of *rest runs* (the
+plate held by friction just before it breaks away). Every segment starts from the measured angle at
+rest, with the friction bristles holding the torque that acts (``Plant.initial_state(at_rest=True)``),
+the simulated current carried over from the previous segment (or the measured one), and the slow states
+of effects (a winding temperature) carried over. One stick-slip event that the model places slightly
+differently therefore spoils at most one segment instead of the rest of the recording.
+
+Sample convention: the recorded voltage at t[k] is applied from t[k] to t[k+1] (zero-order hold).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..plant import Plant
+from ..recordings import Recording
+from .candidates import Candidate, FitParam, nominal_params
+from .measurement import SensorModel, noise_floor, detect_resolution
+
+SEGMENT_MIN_S = 0.25
+
+
+@dataclasses.dataclass
+class RecData:
+    rec: Recording
+    duty: np.ndarray
+    supply_V: np.ndarray
+    bounds: list            # segment boundaries (sample indices), first 0, last n - 1
+    noise_deg: float
+    resolution_deg: float
+    rest: list              # rest runs (a, b)
+    current_sigma_A: float
+
+
+@dataclasses.dataclass
+class Data:
+    recs: list
+    dt_s: float
+    current_weight: float = 0.3
+
+    @property
+    def noise_deg(self) -> float:
+        return float(math.sqrt(np.mean([r.noise_deg ** 2 for r in self.recs])))
+
+
+def prepare(recordings, nominal_supply_V: float, segment_min_s: float = SEGMENT_MIN_S,
+            current_weight: float = 0.3) -> Data:
+    dts = [r.dt_s for r in recordings]
+    if max(dts) - min(dts) > 1e-3 * min(dts):
+        raise ValueError(f"recordings have different sample periods {sorted(set(round(d, 9) for d in dts))} s: "
+                         "resample them to one rate")
+    out = []
+    for r in recordings:
+        if r.supply_V is not None:
+            Vs = np.asarray(r.supply_V, float)
+        else:
+            Vs = np.full(r.n, max(nominal_supply_V, float(np.max(np.abs(r.voltage_V))) * 1.000001))
+        duty = np.clip(r.voltage_V / Vs, -1.0, 1.0)
+        q = detect_resolution(r.angle_deg)
+        sigma, rest = noise_floor(r.t_s, r.angle_deg, q)
+        # boundaries: ends of rest runs, at least segment_min_s apart
+        nmin = int(round(segment_min_s / r.dt_s))
+        bounds = [0]
+        for a, b in rest:
+            e = b - 3
+            if e - bounds[-1] >= nmin and (r.n - 1) - e >= nmin // 2:
+                bounds.append(e)
+        bounds.append(r.n - 1)
+        cs = 0.0
+        if r.current_A is not None:
+            from .measurement import second_difference_sigma
+            cs = max(second_difference_sigma(r.current_A), 1e-4)
+        out.append(RecData(r, duty, Vs, bounds, max(sigma, 1e-4), q, rest, cs))
+    return Data(out, float(np.median(dts)), current_weight)
+
+
+@dataclasses.dataclass
+class Spec:
+    """Which parameters are fitted: the nominal ones plus each active candidate's."""
+
+    base: Plant
+    candidates: tuple = ()          # active Candidate objects, in the order they were added
+    nominal: tuple | None = None
+
+    def __post_init__(self):
+        if self.nominal is None:
+            self.nominal = nominal_params(self.base)
+        self.params: list[tuple[str, FitParam]] = [("nominal", p) for p in self.nominal]
+        for c in self.candidates:
+            self.params += [(c.id, p) for p in c.fit]
+
+    def with_candidate(self, c: Candidate) -> "Spec":
+        return Spec(self.base, tuple(self.candidates) + (c,), self.nominal)
+
+    @property
+    def names(self) -> list[str]:
+        return [f"{o}.{p.name}" if o != "nominal" else p.name for o, p in self.params]
+
+    def x0(self) -> np.ndarray:
+        return np.zeros(len(self.params))
+
+    def bounds(self):
+        lo = np.array([(p.lower - p.init) / p.scale for _, p in self.params])
+        hi = np.array([(p.upper - p.init) / p.scale for _, p in self.params])
+        return lo, hi
+
+    def values(self, x) -> dict:
+        """{"owner.name": physical value} for normalized x."""
+        return {n: p.init + p.scale * float(v) for n, (_, p), v in zip(self.names, self.params, x)}
+
+    def x_from_values(self, values: dict) -> np.ndarray:
+        """Normalized x from known physical values (others at their start)."""
+        return np.array([(values.get(n, p.init) - p.init) / p.scale for n, (_, p) in zip(self.names, self.params)])
+
+    def build(self, x) -> tuple[Plant, SensorModel]:
+        vals = self.values(x)
+        over = {}
+        base_pd = self.base.params_dict()
+        for _, p in self.params:
+            if p.name in vals and "." in p.name and p.name.split(".")[0] in ("friction", "spring", "drive", "stops", "rotor"):
+                v = vals[p.name]
+                over[p.name] = v
+                for k in p.follows:
+                    over[k] = base_pd[k] * v / p.init
+        plant = self.base.with_params(over) if over else self.base
+        pd = plant.params_dict()
+        effects = []
+        sensor = {}
+        for c in self.candidates:
+            fields = {p.name: vals[f"{c.id}.{p.name}"] for p in c.fit}
+            if c.sensor:
+                sensor.update(fields)
+                continue
+            fields.update({f: pd[k] for f, k in c.ties})
+            fields.update(dict(c.fixed))
+            e = c.component(c.component.Params(**fields))
+            effects.append(e)
+        if effects:
+            plant = plant.replace(effects=tuple(self.base.effects) + tuple(effects))
+        return plant, SensorModel(**sensor)
+
+
+def _persistent_slices(plant: Plant) -> list[tuple[int, int]]:
+    lay = plant.engine.layout
+    out = []
+    for k, c in enumerate(plant.components):
+        if getattr(c, "persistent_states", False):
+            out.append(lay.state_slices[k])
+    return out
+
+
+def simulate(plant: Plant, sensor: SensorModel, data: Data):
+    """Predicted reading (deg) and current (A) per recording; non-finite where the simulation failed."""
+    fns = plant.engine.fns
+    keep = _persistent_slices(plant)
+    R = float(getattr(plant.drive.params, "resistance_ohm", 1.0))
+    out = []
+    for rd in data.recs:
+        r = rd.rec
+        n = r.n
+        ang = np.full(n, np.nan)
+        cur = np.full(n, np.nan)
+        xprev = None
+        for a, b in zip(rd.bounds[:-1], rd.bounds[1:]):
+            last = b == rd.bounds[-1]
+            if xprev is not None:
+                i0 = float(xprev[2])
+            elif r.current_A is not None:
+                i0 = float(np.mean(r.current_A[a:a + 3]))
+            else:
+                i0 = float(r.voltage_V[a]) / R
+            y0 = float(np.mean(r.angle_deg[max(0, a - 4):a + 1])) if a > 0 else float(np.mean(r.angle_deg[0:3]))
+            phi0 = math.radians(sensor.invert(y0))
+            phi0 = min(max(phi0, plant.angle_min_rad), plant.angle_max_rad)
+            x0 = plant.initial_state(phi0, current_A=i0)
+            if xprev is not None:
+                for s0, s1 in keep:
+                    x0[s0:s1] = xprev[s0:s1]
+            m = b - a
+            X = np.empty((m + 1, plant.n_states))
+            A = np.empty((m + 1, len(plant.components)))
+            done = fns.simulate(x0, rd.duty[a:b], rd.supply_V[a:b], plant.P, float(r.t_s[a]), plant.control_period_s,
+                                plant.substeps, plant.supply.switching, plant.supply.pwm_frequency_hz, X, A)
+            if done < m:
+                return None
+            stop = m + 1 if last else m
+            ang[a:a + stop] = np.degrees(X[:stop, 0])
+            cur[a:a + stop] = X[:stop, 2]
+            xprev = X[m]
+        ang = sensor.apply(r.t_s, ang)
+        out.append((ang, cur))
+    return out
+
+
+def residuals(pred, data: Data, masks=None, with_current=True) -> np.ndarray:
+    """Stacked normalized residuals (angle / noise floor, current weighted); masks select samples."""
+    parts = []
+    for k, rd in enumerate(data.recs):
+        ang, cur = pred[k]
+        m = slice(None) if masks is None else masks[k]
+        parts.append((ang[m] - rd.rec.angle_deg[m]) / rd.noise_deg)
+        if with_current and rd.rec.current_A is not None and data.current_weight > 0:
+            parts.append(data.current_weight * (cur[m] - rd.rec.current_A[m]) / rd.current_sigma_A)
+    return np.concatenate(parts)
+
+
+def angle_residuals_deg(pred, data: Data) -> list[np.ndarray]:
+    return [pred[k][0] - rd.rec.angle_deg for k, rd in enumerate(data.recs)]

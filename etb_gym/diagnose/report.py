@@ -1,0 +1,313 @@
+"""Say it: report.json (contract: /work/shared/diagnosis-report.md, docs/diagnosis.md), report.md, PNG
+residual plots before/after (over time and per regime), calibrated_plant.toml and a terminal summary."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..plantfile import save_plant
+from . import locate as L
+from .candidates import CANDIDATES
+from .model import angle_residuals_deg, simulate
+
+
+def _rms(x) -> float:
+    return float(math.sqrt(np.mean(np.concatenate(x) ** 2))) if len(x) else 0.0
+
+
+def _regimes(data, base, res, plant):
+    lh = math.degrees(base.limp_home_rad)
+    stops = (math.degrees(base.angle_min_rad), math.degrees(base.angle_max_rad)) if base.stops else (0.0, 90.0)
+    pred = simulate(plant[0], plant[1], data) if plant is not None else None
+    tables = []
+    regs_all = []
+    for k, rd in enumerate(data.recs):
+        cur = rd.rec.current_A if rd.rec.current_A is not None else (pred[k][1] if pred else None)
+        regs = L.regimes(rd.rec, lh, cur, stops)
+        regs_all.append(regs)
+        tables.append(L.regime_table(rd.rec, res[k], regs, rd.noise_deg))
+    return tables, regs_all
+
+
+def _merge_tables(tables):
+    """Pool the per-recording regime tables (RMS weighted by samples)."""
+    pooled = {}
+    for tab in tables:
+        for row in tab:
+            p = pooled.setdefault(row["regime"], {"regime": row["regime"], "samples": 0, "ss": 0.0, "sum": 0.0,
+                                                  "significant": False})
+            p["samples"] += row["samples"]
+            p["ss"] += row["rms_deg"] ** 2 * row["samples"]
+            p["sum"] += row["mean_deg"] * row["samples"]
+            p["significant"] |= row["significant"]
+    out = []
+    for p in pooled.values():
+        out.append({"regime": p["regime"], "samples": p["samples"], "rms_deg": math.sqrt(p["ss"] / p["samples"]),
+                    "mean_deg": p["sum"] / p["samples"], "significant": p["significant"]})
+    return out
+
+
+def _where(before, after, top=2):
+    b = {r["regime"]: r for r in before}
+    gains = []
+    for r in after:
+        if r["regime"] in b and b[r["regime"]]["significant"]:
+            gains.append((b[r["regime"]]["rms_deg"] - r["rms_deg"], r["regime"]))
+    gains.sort(reverse=True)
+    return [g for d, g in gains[:top] if d > 0] or ["throughout"]
+
+
+def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor, opts, elapsed):
+    from .run import RMS_K, QUANT_K, Result, _significant_residual
+
+    names = [r.name for r in recs]
+    tab0, regs = _regimes(data, base, res0, nominal.spec.build(nominal.x))
+    tab1, _ = _regimes(data, base, res1, (plant, sensor))
+    before, after = _merge_tables(tab0), _merge_tables(tab1)
+    sig0 = _significant_residual(data, res0)
+    sig1 = _significant_residual(data, res1)
+    windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg) for rd, r in zip(data.recs, res0)}
+    effects = []
+    prev = nominal
+    prev_res = res0
+    errs = final.stderr()
+    vals = final.values
+    for st in steps:
+        r_new = angle_residuals_deg(simulate(*st.fit.spec.build(st.fit.x), data), data)
+        t_prev = _merge_tables(_regimes(data, base, prev_res, None)[0])
+        t_new = _merge_tables(_regimes(data, base, r_new, None)[0])
+        c = CANDIDATES[st.id]
+        params = {}
+        for p in c.fit:
+            key = f"{c.id}.{p.name}"
+            params[p.name] = {"value": vals[key], "stderr": errs[key], "unit": p.unit}
+        effects.append({"id": c.id, "family": c.family, "description": c.description,
+                        "where": _where(t_prev, t_new), "parameters": params,
+                        "rms_gain_deg": _rms(prev_res) - _rms(r_new), "delta_bic": st.dbic,
+                        "heldout_gain": st.cv_gain})
+        prev, prev_res = st.fit, r_new
+    quant = max(rd.resolution_deg for rd in data.recs)
+    if "sensor_quantization" in opts.candidates and quant > QUANT_K * opts.sensor_resolution_deg:
+        effects.append({"id": "sensor_quantization", "family": "sensing",
+                        "description": CANDIDATES["sensor_quantization"].description,
+                        "where": ["every sample (the readings lie on a grid)"],
+                        "parameters": {"resolution_deg": {"value": quant, "stderr": 0.0, "unit": "deg"}},
+                        "rms_gain_deg": 0.0, "assumed_resolution_deg": opts.sensor_resolution_deg})
+    fitted = [e for e in effects if e["id"] != "sensor_quantization"]
+    if not sig0:
+        verdict = "explained" if effects else "match"
+    elif fitted:
+        verdict = "partly_explained" if sig1 else "explained"
+    else:
+        verdict = "unexplained"
+    unexplained = []
+    if sig1:
+        for rd, r, tab in zip(data.recs, res1, tab1):
+            wins = L.windows(rd.rec.t_s, r, rd.noise_deg)
+            mask = np.zeros(r.size, bool)
+            for a, b in wins:
+                mask |= (rd.rec.t_s >= a) & (rd.rec.t_s <= b)
+            sig_regs = sorted([row for row in tab if row["significant"]], key=lambda row: -row["rms_deg"])
+            where = ", ".join(row["regime"] for row in sig_regs[:2]) or "throughout"
+            rms = float(math.sqrt(np.mean(r[mask] ** 2))) if mask.any() else float(math.sqrt(np.mean(r ** 2)))
+            unexplained.append({"recording": rd.rec.name, "where": where, "rms_deg": rms,
+                                "windows_s": wins, "description": L.describe(rd.rec, r, None, rd.noise_deg, mask)})
+    tests = []
+    for rd, r0, r1 in zip(data.recs, res0, res1):
+        x0, bound = L.input_xcorr(r0, rd.rec.voltage_V)
+        x1, _ = L.input_xcorr(r1, rd.rec.voltage_V)
+        tests.append({"recording": rd.rec.name, "ljung_box_p_before": L.ljung_box(r0 / rd.noise_deg),
+                      "ljung_box_p_after": L.ljung_box(r1 / rd.noise_deg), "input_xcorr_before": x0,
+                      "input_xcorr_after": x1, "input_xcorr_bound_99": bound})
+    nerr = nominal.stderr()
+    calibrated = {n: {"value": v, "stderr": final.stderr()[n], "nominal_fit": nominal.values[n],
+                      "unit": p.unit} for n, v, (_, p) in zip(final.spec.names, final.spec.values(final.x).values(),
+                                                                final.spec.params) if _ == "nominal"}
+    report = {
+        "schema": "etb-gym/diagnosis/1",
+        "model": base.model or "custom",
+        "recordings": names,
+        "verdict": verdict,
+        "rms_before_deg": _rms(res0),
+        "rms_after_deg": _rms(res1),
+        "noise_floor_deg": data.noise_deg,
+        "mismatch_windows_s": windows,
+        "effects": effects,
+        "unexplained": unexplained,
+        "calibrated_plant": "calibrated_plant.toml",
+        "calibrated_parameters": calibrated,
+        "sensor": {"offset_deg": sensor.offset_deg, "gain": sensor.gain, "delay_s": sensor.delay_s,
+                   "resolution_deg": quant},
+        "regimes_before": before,
+        "regimes_after": after,
+        "tests": tests,
+        "elapsed_s": elapsed,
+    }
+    return Result(report, data, nominal, final, res0, res1, tab0, tab1, plant, sensor, elapsed)
+
+
+# ------------------------------------------------------------------------------------------ writing
+def _atomic_text(path: Path, text: str):
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(text)
+    os.replace(tmp, path)
+
+
+def _json_safe(o):
+    if isinstance(o, dict):
+        return {k: _json_safe(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_json_safe(v) for v in o]
+    if isinstance(o, (np.floating, float)):
+        return float(o) if math.isfinite(o) else None
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, np.bool_):
+        return bool(o)
+    return o
+
+
+def plots(result, out: Path) -> list[str]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = []
+    data = result.data
+    n = len(data.recs)
+    fig, axes = plt.subplots(n, 1, figsize=(10, 2.8 * n), squeeze=False)
+    for ax, rd, r0, r1 in zip(axes[:, 0], data.recs, result.residual_before, result.residual_after):
+        t = rd.rec.t_s
+        for a, b in result.report["mismatch_windows_s"][rd.rec.name]:
+            ax.axvspan(a, b, color="orange", alpha=0.2, lw=0)
+        ax.plot(t, r0, lw=0.6, label="calibrated nominal model")
+        ax.plot(t, r1, lw=0.6, label="with the added effects")
+        s = rd.noise_deg
+        ax.axhline(3 * s, color="k", ls=":", lw=0.8)
+        ax.axhline(-3 * s, color="k", ls=":", lw=0.8, label="3x noise floor")
+        ax.set_title(f"{rd.rec.name}: simulated minus recorded angle (shaded: mismatch windows)", fontsize=9)
+        ax.set_ylabel("residual [deg]")
+        ax.legend(fontsize=7, loc="upper right")
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.tight_layout()
+    p = out / "residual_time.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    files.append(p.name)
+
+    before = {r["regime"]: r for r in result.report["regimes_before"]}
+    after = {r["regime"]: r for r in result.report["regimes_after"]}
+    keys = list(before)
+    fig, ax = plt.subplots(figsize=(8, 0.32 * len(keys) + 1.2))
+    y = np.arange(len(keys))
+    ax.barh(y - 0.2, [before[k]["rms_deg"] for k in keys], 0.4, label="calibrated nominal model")
+    ax.barh(y + 0.2, [after[k]["rms_deg"] if k in after else 0 for k in keys], 0.4, label="with the added effects")
+    ax.axvline(data.noise_deg, color="k", ls=":", label="noise floor")
+    ax.set_yticks(y, keys, fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("RMS residual [deg]")
+    ax.set_title("residual by operating regime", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    p = out / "residual_regimes.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    files.append(p.name)
+
+    rd = data.recs[0]
+    pred0 = simulate(*result.nominal_fit.spec.build(result.nominal_fit.x), data)[0][0]
+    pred1 = simulate(result.plant, result.sensor, data)[0][0]
+    fig, ax = plt.subplots(figsize=(10, 3))
+    ax.plot(rd.rec.t_s, rd.rec.angle_deg, "k", lw=0.8, label="recorded")
+    ax.plot(rd.rec.t_s, pred0, lw=0.7, label="calibrated nominal model")
+    ax.plot(rd.rec.t_s, pred1, lw=0.7, ls="--", label="with the added effects")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("angle [deg]")
+    ax.set_title(f"{rd.rec.name}: segment-wise simulation of the recorded voltage", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    p = out / "angle_fit.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    files.append(p.name)
+    return files
+
+
+def _fmt(v, e=None, unit=""):
+    if e is None or not math.isfinite(e):
+        return f"{v:.4g} {unit}".strip()
+    return f"{v:.4g} +- {e:.2g} {unit}".strip()
+
+
+def markdown(result, figures) -> str:
+    r = result.report
+    lines = [f"# Diagnosis: {', '.join(r['recordings'])} against model {r['model']}", "",
+             f"**Verdict: {r['verdict']}.** RMS angle error {r['rms_before_deg']:.4f} deg (calibrated nominal model) "
+             f"-> {r['rms_after_deg']:.4f} deg (final model); noise floor {r['noise_floor_deg']:.4f} deg. "
+             f"Run time {r['elapsed_s']:.1f} s.", ""]
+    lines += ["## Calibrated nominal parameters", "", "| parameter | nominal-only fit | final | unit |", "| --- | --- | --- | --- |"]
+    for k, v in r["calibrated_parameters"].items():
+        lines.append(f"| `{k}` | {v['nominal_fit']:.4g} | {_fmt(v['value'], v['stderr'])} | {v['unit']} |")
+    lines += ["", "## Where the calibrated nominal model disagrees", ""]
+    for name, w in r["mismatch_windows_s"].items():
+        lines.append(f"- `{name}`: " + (", ".join(f"{a:.2f}-{b:.2f} s" for a, b in w) if w else "no window above 3x the noise floor"))
+    lines += ["", "| regime | samples | RMS before [deg] | RMS after [deg] | significant before |", "| --- | --- | --- | --- | --- |"]
+    after = {x["regime"]: x for x in r["regimes_after"]}
+    for x in r["regimes_before"]:
+        a = after.get(x["regime"], {}).get("rms_deg", float("nan"))
+        lines.append(f"| {x['regime']} | {x['samples']} | {x['rms_deg']:.4f} | {a:.4f} | {'yes' if x['significant'] else ''} |")
+    lines += ["", "## Effects added", ""]
+    if not r["effects"]:
+        lines.append("None.")
+    for e in r["effects"]:
+        lines.append(f"### `{e['id']}`: {e['description']}")
+        lines.append("")
+        lines.append(f"Shows in: {', '.join(e['where'])}. RMS gain {e['rms_gain_deg']:.4f} deg.")
+        if "delta_bic" in e:
+            lines.append(f" dBIC {e['delta_bic']:.0f}, held-out error {e['heldout_gain']:+.0%}.")
+        lines.append("")
+        for k, p in e["parameters"].items():
+            lines.append(f"- `{k}` = {_fmt(p['value'], p['stderr'], p['unit'])}")
+        lines.append("")
+    lines += ["## Unexplained", ""]
+    if not r["unexplained"]:
+        lines.append("Nothing significant remains." if r["verdict"] in ("match", "explained") else "")
+    for u in r["unexplained"]:
+        lines.append(f"- `{u['recording']}`: {u['where']}, RMS {u['rms_deg']:.4f} deg: {u['description']}")
+    lines += ["", "## Residual tests", "", "| recording | Ljung-Box p before | after | max input xcorr before | after | 99 % bound |",
+              "| --- | --- | --- | --- | --- | --- |"]
+    for t in r["tests"]:
+        lines.append(f"| {t['recording']} | {t['ljung_box_p_before']:.2g} | {t['ljung_box_p_after']:.2g} | "
+                     f"{t['input_xcorr_before']:.3f} | {t['input_xcorr_after']:.3f} | {t['input_xcorr_bound_99']:.3f} |")
+    lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
+    lines += ["", f"The calibrated plant (with the effects that act on the plate) is `{r['calibrated_plant']}`: "
+              "`gym.make(\"ETB-3B-v0\", plant=...)` loads it. Sensor-side effects are in `report.json` (`sensor`).", ""]
+    return "\n".join(lines)
+
+
+def summary(result) -> str:
+    r = result.report
+    s = [f"verdict: {r['verdict']}   RMS {r['rms_before_deg']:.4f} -> {r['rms_after_deg']:.4f} deg   "
+         f"(noise floor {r['noise_floor_deg']:.4f} deg, {r['elapsed_s']:.1f} s)"]
+    for name, w in r["mismatch_windows_s"].items():
+        s.append(f"  mismatch in {name}: {len(w)} window(s)" + (f", first {w[0][0]:.2f}-{w[0][1]:.2f} s" if w else ""))
+    for e in r["effects"]:
+        ps = ", ".join(f"{k} = {_fmt(p['value'], p['stderr'], p['unit'])}" for k, p in e["parameters"].items())
+        s.append(f"  + {e['id']} ({', '.join(e['where'])}): {ps}")
+    for u in r["unexplained"]:
+        s.append(f"  ? unexplained in {u['recording']}: {u['where']} (RMS {u['rms_deg']:.3f} deg): {u['description']}")
+    return "\n".join(s)
+
+
+def write(result, out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    figures = plots(result, out)
+    save_plant(result.plant, out / "calibrated_plant.toml")
+    _atomic_text(out / "report.json", json.dumps(_json_safe(result.report), indent=2) + "\n")
+    _atomic_text(out / "report.md", markdown(result, figures))

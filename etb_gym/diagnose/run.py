@@ -1,0 +1,133 @@
+"""The diagnosis pipeline: recordings -> calibrate -> locate -> explain -> result (report.py writes it).
+
+    from etb_gym.diagnose import diagnose
+    result = diagnose(["rig_run_01.csv"], model="3B", out="diag/")
+    result.verdict, result.report["effects"]
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..plant import MODELS, Plant, make_plant
+from ..recordings import Recording, load_recording
+from . import fit as F
+from . import locate as L
+from .candidates import CANDIDATES, FITTED_CANDIDATES
+from .explain import Runner, select
+from .measurement import DEFAULT_RESOLUTION_DEG
+from .model import Data, Spec, angle_residuals_deg, prepare, simulate
+
+SCHEMA = "etb-gym/diagnosis/1"
+RMS_K = 1.5          # the recording matches when the RMS residual is within RMS_K x the noise floor
+QUANT_K = 1.5        # a resolution this much coarser than assumed is reported
+
+
+@dataclasses.dataclass
+class Options:
+    model: str = "3B"
+    plant: Plant | None = None                 # start from this plant instead of make_plant(model)
+    candidates: tuple = FITTED_CANDIDATES + ("sensor_quantization",)
+    max_effects: int = 3
+    jobs: int = 2
+    sensor_resolution_deg: float = DEFAULT_RESOLUTION_DEG
+    current_weight: float = 0.3
+    progress: bool = True
+    verbose: bool = True
+
+
+@dataclasses.dataclass
+class Result:
+    report: dict
+    data: Data
+    nominal_fit: F.FitResult
+    final_fit: F.FitResult
+    residual_before: list
+    residual_after: list
+    regimes_before: list
+    regimes_after: list
+    plant: Plant
+    sensor: object
+    elapsed_s: float
+
+    @property
+    def verdict(self) -> str:
+        return self.report["verdict"]
+
+
+def _significant_residual(data: Data, res: list) -> bool:
+    for rd, r in zip(data.recs, res):
+        if L.windows(rd.rec.t_s, r, rd.noise_deg):
+            return True
+        if math.sqrt(float(np.mean(r ** 2))) > RMS_K * rd.noise_deg:
+            return True
+    return False
+
+
+def _rms(res: list) -> float:
+    return float(math.sqrt(np.mean(np.concatenate(res) ** 2)))
+
+
+def diagnose(recordings, model: str = "3B", out=None, options: Options | None = None, **kw) -> "Result":
+    """Diagnose ``recordings`` (paths or :class:`Recording`) against ``model``; write the report to ``out``."""
+    t_start = time.perf_counter()
+    opts = options or Options(model=model, **kw)
+    if options is not None and kw:
+        opts = dataclasses.replace(options, **kw)
+    if opts.plant is None and str(opts.model).upper() not in MODELS:
+        raise ValueError(f"model {opts.model!r}: expected one of {', '.join(MODELS)}")
+    unknown = [c for c in opts.candidates if c not in CANDIDATES]
+    if unknown:
+        raise ValueError(f"unknown candidate effect(s) {unknown}; valid: {', '.join(CANDIDATES)}")
+    recs = [r if isinstance(r, Recording) else load_recording(r) for r in recordings]
+    if not recs:
+        raise ValueError("diagnose needs at least one recording")
+    names = [r.name for r in recs]
+    if len(set(names)) != len(names):
+        raise ValueError(f"recordings must have distinct file names, got {names}")
+    log = print if opts.verbose else (lambda *a, **k: None)
+    dt = recs[0].dt_s
+    base = opts.plant if opts.plant is not None else make_plant(opts.model, control_period_s=round(dt, 9))
+    if abs(base.control_period_s - dt) > 1e-6 * dt:
+        base = base.replace(control_period_s=dt)
+    data = prepare(recs, base.supply.voltage_V, current_weight=opts.current_weight)
+    log(f"etb-gym diagnose: {len(recs)} recording(s), {sum(r.n for r in recs)} samples at {1 / dt:.0f} Hz, "
+        f"model {base.model or 'custom'}; noise floor {data.noise_deg:.4f} deg")
+
+    from tqdm import tqdm
+    n_fit = len([c for c in opts.candidates if CANDIDATES[c].fit])
+    bar = tqdm(total=1 + opts.max_effects * (n_fit + 4), disable=not opts.progress, unit="fit", leave=False)
+    runner = Runner(data, opts.jobs)
+    try:
+        bar.set_description("calibrating the nominal model")
+        spec0 = Spec(base)
+        nominal = F.fit(spec0, data, max_nfev=40)
+        bar.update(1)
+        res0 = angle_residuals_deg(simulate(*spec0.build(nominal.x), data), data)
+
+        def significant(fr: F.FitResult) -> bool:
+            return _significant_residual(data, angle_residuals_deg(simulate(*fr.spec.build(fr.x), data), data))
+
+        sig0 = _significant_residual(data, res0)
+        log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
+        if sig0:
+            final, steps = select(nominal, data, runner, [c for c in opts.candidates if CANDIDATES[c].fit],
+                                  significant, opts.max_effects, bar, log)
+        else:
+            final, steps = nominal, []
+    finally:
+        runner.close()
+        bar.close()
+    plant, sensor = final.spec.build(final.x)
+    res1 = angle_residuals_deg(simulate(plant, sensor, data), data)
+    from .report import assemble
+    result = assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor, opts,
+                      time.perf_counter() - t_start)
+    if out is not None:
+        from .report import write
+        write(result, Path(out))
+    return result
