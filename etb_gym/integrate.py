@@ -143,12 +143,16 @@ def control_step(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux):
             toff = Tp - ton
             if ton > 0.0:
                 m = int(math.ceil(ton / hmax - 1e-9))
+                if m < 1:  # an interval far shorter than a substep (duty a hair from 0 or +-1)
+                    m = 1
                 h = ton / m
                 for k in range(m):
                     substep(t, h, x, von, P, dx, aux)
                     t += h
             if toff > 0.0:
                 m = int(math.ceil(toff / hmax - 1e-9))
+                if m < 1:  # an interval far shorter than a substep (duty a hair from 0 or +-1)
+                    m = 1
                 h = toff / m
                 for k in range(m):
                     substep(t, h, x, 0.0, P, dx, aux)
