@@ -202,8 +202,8 @@ def test_switching_pwm_tolerates_sub_nanosecond_pulses(duty):
 
 
 # ------------------------------------------------------------------------------------ non-physical input
-def _role_fields(model):
-    """(override key, valid range description) of every parameter that must be > 0."""
+def _positive_fields(model):
+    """Override keys of the parameters that must be > 0 (J, R, L, sigma0)."""
     keys = ["rotor.inertia_kg_m2", "drive.resistance_ohm", "drive.inductance_H"]
     if model[0] in "23":
         keys.append("friction.bristle_stiffness_Nm_per_rad")
@@ -212,13 +212,13 @@ def _role_fields(model):
 
 @st.composite
 def nonphysical(draw):
-    """(model, overrides, the field the error must name)."""
+    """(model, overrides, the field the error must name, the bad value)."""
     model = draw(st.sampled_from(MODELS))
     p = make_plant(model)
     kind = draw(st.sampled_from(["non_positive", "negative_friction", "static_below_coulomb",
                                  "limp_home_outside", "non_finite", "negative_spring"]))
     if kind == "non_positive":
-        key = draw(st.sampled_from(_role_fields(model)))
+        key = draw(st.sampled_from(_positive_fields(model)))
         val = draw(st.one_of(st.just(0.0), st.just(-0.0), st.floats(-1e3, 0.0)))
     elif kind == "negative_friction":
         fields = ["friction.viscous_Nm_s_per_rad"]
@@ -240,7 +240,7 @@ def nonphysical(draw):
         key = draw(st.sampled_from(["spring.preload_Nm", "spring.rate_Nm_per_rad"]))
         val = draw(st.floats(-10.0, -1e-9))
     else:
-        key = draw(st.sampled_from(_role_fields(model) + ["spring.preload_Nm", "friction.viscous_Nm_s_per_rad"]))
+        key = draw(st.sampled_from(_positive_fields(model) + ["spring.preload_Nm", "friction.viscous_Nm_s_per_rad"]))
         val = draw(st.sampled_from([math.nan, math.inf, -math.inf]))
     return model, {key: val}, key.split(".", 1)[1], val
 
