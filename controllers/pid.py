@@ -12,8 +12,9 @@ Voltage law (radians inside, volts out, duty = u / V_nominal clamped to [-1, 1])
     u      = u_lh + u_fc + u_pid
 
     I_{k+1} = I_k + T [Ki(r) e + (u_sat - u) / T_t]      back-calculation anti-windup (T_t = sqrt(Ti Td))
-              only while |e| < integral_zone              (conditional integration: the large-step
-                                                          transient is left to P, D and the compensators)
+              only while |e| < integral_zone or the plate  (conditional integration: the large-step
+              rests (|v| < rest_speed)                    transient is left to P, D and the compensators,
+                                                          a plate stuck far from the target still winds up)
 
 Gains: designed by :func:`etb_gym.controllers.design.design_pid` on the numerically linearized core plant
 at the scheduling angles (default 1.5 deg below limp-home and 13, 40, 80 deg above: holding current and
@@ -211,7 +212,7 @@ class PIDController(BaseController):
         u = self.feedforward_V(r) + self.friction_V(e, v) + u_pid
         Vs = self.supply_V
         u_sat = min(Vs, max(-Vs, u))
-        if abs(e) < self.integral_zone_rad and ki > 0:
+        if ki > 0 and (abs(e) < self.integral_zone_rad or abs(v) < self.rest_speed_rad_s):
             ti = kp / ki if ki > 0 else math.inf
             td = kd / kp if kp > 0 else 0.0
             tt = math.sqrt(ti * td) if td > 0 else ti

@@ -36,7 +36,7 @@ Gains (derived, see docs/controllers.md):
 * In the layer u = (K/Phi)(de/dt + lambda e) + integral: a PD+I loop around the linearized plant. lambda
   is the stated surface bandwidth; the layer gain G = K/Phi is the largest one whose discrete loop keeps a
   gain margin >= ``gain_margin_db`` and phase margin >= ``phase_margin_deg`` (controllers/design.py);
-  Phi = K/G; k0 = lambda / 4.
+  Phi = K/G; k0 = lambda / 2 (integral gain in the layer G k0 lambda).
 """
 from __future__ import annotations
 
@@ -87,7 +87,7 @@ class SlidingModeController(BaseController):
 
     Parameters: ``model``/``params`` (nominal plant, default "3B"), ``lambda_rad_s`` (surface slope),
     ``K_V`` (switching amplitude; default derived), ``layer_gain_V_s_per_rad`` (K/Phi; default designed),
-    ``k0_rad_s`` (conditional integrator rate; default lambda/4), ``friction_level`` (fraction of the
+    ``k0_rad_s`` (conditional integrator rate; default lambda/2), ``friction_level`` (fraction of the
     nominal friction in the equivalent control), ``gain_margin_db``/``phase_margin_deg`` for the layer design.
     """
 
@@ -121,7 +121,7 @@ class SlidingModeController(BaseController):
             layer_gain_V_s_per_rad = design_layer_gain(_model_key(m), self.lambda_rad_s, wf, gm, pm)
         self.layer_gain = check_gain(own, "layer_gain_V_s_per_rad", layer_gain_V_s_per_rad, positive=True)
         self.phi_layer = self.K_V / self.layer_gain                 # Phi [rad/s]
-        self.k0 = check_gain(own, "k0_rad_s", self.lambda_rad_s / 4 if k0_rad_s is None else k0_rad_s, positive=True)
+        self.k0 = check_gain(own, "k0_rad_s", self.lambda_rad_s / 2 if k0_rad_s is None else k0_rad_s, positive=True)
         # friction sign smoothing: the velocity-equivalent of two sensor quantization steps on the surface
         if friction_layer_rad_s is None:
             friction_layer_rad_s = self.lambda_rad_s * 2 * math.radians(90.0 / 4096)
