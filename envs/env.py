@@ -577,7 +577,7 @@ class ETBEnv(gym.Env):
 
     @property
     def model_name(self) -> str:
-        return self.plant.model or "custom plant"
+        return f"ETB-{self.plant.model}" if self.plant.model else "custom plant"
 
     def close(self):
         if self._renderer is not None:

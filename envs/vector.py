@@ -13,6 +13,9 @@ Autoreset is Gymnasium's default ``NEXT_STEP`` mode: the step after a sub-env is
 (its action is ignored, reward 0) and returns the reset observation and info. ``info`` is a dict of arrays
 with ``_key`` masks, as ``SyncVectorEnv`` builds it. Rendering is not supported here (use
 ``vectorization_mode="sync"`` to render sub-envs).
+
+``num_threads`` (keyword, default: 1 below 512 sub-envs, else numba's thread count) sets the threads of
+the parallel batch step; waking a thread pool costs more than stepping a few hundred plants.
 """
 from __future__ import annotations
 
@@ -23,8 +26,43 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from etb_gym.jit import HAVE_NUMBA
+
 from . import observation as obsmod
 from .env import NOISE_BLOCK, RAD2DEG, ETBEnv
+
+SERIAL_UP_TO = 4      # up to this many plants: the single env's compiled control step in a loop
+PARALLEL_FROM = 512   # below this many plants one thread is faster than waking numba's thread pool
+
+
+def _max_threads() -> int:
+    if not HAVE_NUMBA:
+        return 1
+    import numba
+
+    return numba.config.NUMBA_NUM_THREADS
+
+
+class _Threads:
+    """Run numba parallel regions with ``n`` threads inside the block (restores the previous count)."""
+
+    def __init__(self, n):
+        self.n, self.prev = n, None
+
+    def __enter__(self):
+        if HAVE_NUMBA:
+            import numba
+
+            self.prev = numba.get_num_threads()
+            if self.prev != self.n:
+                numba.set_num_threads(self.n)
+        return self
+
+    def __exit__(self, *exc):
+        if self.prev is not None and self.prev != self.n:
+            import numba
+
+            numba.set_num_threads(self.prev)
 
 
 class ETBVectorEnv(VectorEnv):
@@ -32,9 +70,14 @@ class ETBVectorEnv(VectorEnv):
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
-    def __init__(self, num_envs: int = 1, **kwargs):
+    def __init__(self, num_envs: int = 1, num_threads: int | None = None, **kwargs):
         if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
             raise ValueError(f"num_envs = {num_envs!r}: expected an integer >= 1")
+        if num_threads is None:
+            num_threads = 1 if num_envs < PARALLEL_FROM else _max_threads()
+        elif not (isinstance(num_threads, (int, np.integer)) and 1 <= num_threads <= _max_threads()):
+            raise ValueError(f"num_threads = {num_threads!r}: expected an integer in [1, {_max_threads()}]")
+        self.num_threads = int(num_threads)
         if kwargs.get("render_mode") is not None:
             raise ValueError(f"render_mode = {kwargs['render_mode']!r}: the native vector env does not render; "
                              "use gym.make_vec(..., vectorization_mode='sync') to render sub-envs")
@@ -66,6 +109,7 @@ class ETBVectorEnv(VectorEnv):
         self._rows = np.arange(N)
         self._dx = np.empty(p.n_states)
         self._started = False
+        self._threads = _Threads(self.num_threads)
 
     # ------------------------------------------------------------------------------ per-row resets
     def _reset_rows(self, rows, seeds, options):
@@ -94,14 +138,16 @@ class ETBVectorEnv(VectorEnv):
 
     # ------------------------------------------------------------------------------ sensing and outputs
     def _observe(self, rows, r, d, t):
-        """Observation and info arrays for ``rows`` (the single env's ``_observe``, over a batch)."""
+        """Observation and info arrays for ``rows`` (an index array, or ``slice(None)`` for all sub-envs):
+        the single env's ``_observe`` over a batch."""
         env = self.env
+        ri = self._rows if isinstance(rows, slice) else rows
         X = self._X[rows]
         phi = X[:, 0]
         if env._delay:
             pos = self._dpos[rows]
-            old = self._dbuf[rows, pos]
-            self._dbuf[rows, pos] = phi
+            old = self._dbuf[ri, pos]
+            self._dbuf[ri, pos] = phi
             self._dpos[rows] = (pos + 1) % self._dbuf.shape[1]
             phi_read = old
         else:
@@ -110,16 +156,17 @@ class ETBVectorEnv(VectorEnv):
         full = npos == NOISE_BLOCK
         if full.any():
             for j in np.flatnonzero(full):
-                i = rows[j]
+                i = ri[j]
                 if not self._autoreset[i]:       # a row about to be reset draws its noise at the reset
                     self._noise[i] = self._rngs[i].standard_normal((NOISE_BLOCK, 2))
                     npos[j] = 0
             npos = np.minimum(npos, NOISE_BLOCK - 1)
-        z = self._noise[rows, npos]
+        z = self._noise[ri, npos]
         self._npos[rows] = npos + 1
         sensed = env.sensor.transform(phi_read, self._noise_std[rows] * z[:, 0])
         s_deg = sensed * RAD2DEG
-        obs = np.empty((len(rows), env.n_obs), np.float32)
+        n = len(ri)
+        obs = np.empty((n, env.n_obs), np.float32)
         if env.observe_current:
             i_read = X[:, 2] + env._cur_std * z[:, 1]
             if env._cur_q > 0.0:
@@ -138,17 +185,19 @@ class ETBVectorEnv(VectorEnv):
                 "current_A": X[:, 2].copy(), "voltage_V": d * V, "duty": np.array(d, float), "reference_deg": r,
                 "supply_V": V}
         for key, k in env._torque_index:
-            info[key] = AUX[:, k].copy() if k >= 0 else np.zeros(len(rows))
+            info[key] = AUX[:, k].copy() if k >= 0 else np.zeros(n)
         for key, k in env._effect_torques:
             info[key] = AUX[:, k].copy()
         info["t_s"] = np.array(t, float)
         return obs, info
 
     def _with_masks(self, info):
+        """Add SyncVectorEnv's ``_key`` masks (all True: every sub-env reports every key; one shared array)."""
         out = {}
+        every = np.ones(self.num_envs, bool)
         for k, v in info.items():
             out[k] = v
-            out["_" + k] = np.ones(self.num_envs, bool)
+            out["_" + k] = every
         return out
 
     # ------------------------------------------------------------------------------ VectorEnv API
@@ -206,19 +255,27 @@ class ETBVectorEnv(VectorEnv):
         d = np.clip(a, -1.0, 1.0)
         d[~live] = 0.0
         dt = env.dt
-        ok = self.plant.step_batch(self._X, d, self._V, self._P, self._K * dt, self._AUX)
+        t0 = self._K * dt
+        if self.num_envs <= SERIAL_UP_TO:     # a parallel region costs more than a few plants
+            ok = np.empty(self.num_envs, bool)
+            cs, X, V, P, A = env._control_step, self._X, self._V, self._P, self._AUX
+            for i in range(self.num_envs):
+                ok[i] = cs(X[i], d[i], V[i], P[i], t0[i], dt, env._nsub, env._sw, env._fpwm, A[i])
+        else:
+            with self._threads:
+                ok = self.plant.step_batch(self._X, d, self._V, self._P, t0, self._AUX)
         if not ok[live].all():
             k = int(np.argmax(~ok & live))
             raise FloatingPointError(f"sub-env {k}: ETB plant state became non-finite at t = "
                                      f"{(self._K[k] + 1) * dt:.6f} s: {dict(zip(self.plant.state_names, self._X[k]))}")
         K = self._K
         K += 1
-        r = self._tab[self._rows, np.minimum(K, env.max_steps)]
+        r = self._tab[self._rows, np.minimum(K, env.max_steps)]   # (rows past the end are reset below)
         e = r - self._X[:, 0] * RAD2DEG
         dd = d - self._duty
         reward = -(env._wt * np.abs(e) + env._we * (d * d) + env._wc * (dd * dd))
         self._duty = d
-        obs, info = self._observe(self._rows, r, d, K * dt)
+        obs, info = self._observe(slice(None), r, d, K * dt)
         trunc = K >= env.max_steps
         resets = np.flatnonzero(~live)
         if resets.size:

@@ -235,3 +235,23 @@ def test_switching_pwm_and_extra_observations():
     assert env.observation_space.contains(obs)
     x = env.unwrapped._x
     assert np.allclose(obs[5:], (x / env.unwrapped.state_scales).astype(np.float32))
+
+
+def test_render_rgb_array_and_headless_human():
+    env = gym.make("ETB-2B-v0", render_mode="rgb_array", reference="steps", episode_s=0.5)
+    env.reset(seed=0)
+    for _ in range(300):
+        env.step(np.array([0.6], np.float32))
+    frame = env.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+    assert frame.shape[0] >= 200 and frame.shape[1] >= 400
+    assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 50          # a drawing, not a blank canvas
+    env.step(np.array([-0.6], np.float32))
+    assert not np.array_equal(env.render(), frame)                     # the picture follows the state
+    env.close()
+    human = gym.make("ETB-2B-v0", render_mode="human", episode_s=0.01)  # Agg backend in tests: no window
+    human.reset(seed=0)
+    for _ in range(3):
+        human.step(np.zeros(1, np.float32))
+    assert human.render() is None
+    human.close()
