@@ -5,7 +5,8 @@
              -max(0, k*d_hi + c*omega)   if d_hi > 0      (pushes closed)
 
 The max(0, .) keeps the contact from pulling the plate back into the stop as it leaves.
-Defaults: k = 1000 Nm/rad (0.075 deg penetration under the full 1.3 Nm stall torque), c = 0.1 Nm*s/rad
+Defaults: k = 1000 Nm/rad (0.075 deg penetration at rest under the full 1.3 Nm stall torque; an impact at
+100-160 rad/s penetrates up to ~0.8 deg for a fraction of a millisecond), c = 0.1 Nm*s/rad
 (damping ratio ~0.3 with J = 30e-6 kg m^2, coefficient of restitution ~0.37).
 """
 from __future__ import annotations
