@@ -255,3 +255,22 @@ def test_render_rgb_array_and_headless_human():
         human.step(np.zeros(1, np.float32))
     assert human.render() is None
     human.close()
+
+
+def test_plant_file_docs_examples_and_effect_torque_in_info(tmp_path):
+    import re
+    import tomllib
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "docs" / "plant-file.md").read_text()
+    blocks = re.findall(r"```toml\n(.*?)```", text, re.S)
+    assert len(blocks) == 2
+    full = tmp_path / "doc_example.toml"
+    full.write_text(blocks[0])
+    env = gym.make("ETB-1A-v0", plant=str(full))
+    assert env.unwrapped.plant.model == "3B"
+    _, info = env.reset(seed=0, options={"angle_deg": 60.0})
+    assert info["torque_airflow_torque_Nm"] > 0.0          # quadratic_Nm = 0.02 at 60 deg
+    *_, info = env.step(np.zeros(1, np.float32))
+    assert "torque_airflow_torque_Nm" in info
+    assert etb_gym.Plant.from_dict(tomllib.loads(blocks[1])).friction.params.static_Nm == 0.3
