@@ -129,7 +129,7 @@ class PIDController(BaseController):
                  gain_scheduling: bool = True, kp: float | None = None, ki: float | None = None,
                  kd: float | None = None, friction_compensation: bool = True, limp_home_compensation: bool = True,
                  friction_level: float = 1.0, friction_zone_rad: float | None = None,
-                 rest_speed_rad_s: float = 0.5, integral_zone_rad: float = math.radians(3.0),
+                 rest_speed_rad_s: float = 0.5, integral_zone_rad: float = math.radians(10.0),
                  supply_V: float | None = None, name: str | None = None):
         self.model = resolve_model(model, params)
         super().__init__(self.model.control_period_s if dt is None else dt)

@@ -1,0 +1,129 @@
+"""Benchmark: tiny sweeps through the env, CSV contract, resume, bad names, process pool == Ray."""
+import csv
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from etb_gym import bench_report
+from etb_gym.benchmark import (CSV_COLUMNS, SCENARIOS, VARIANTS, Job, make_jobs, metrics, read_results, run_sweep,
+                               simulate)
+
+REQUIRED = ("controller", "scenario", "variant", "seed", "rise_time_s", "settling_time_s", "overshoot_pct",
+            "steady_state_error_deg", "rms_error_deg", "peak_current_A", "duty_total_variation")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _rows_by_key(rows):
+    return {(r["controller"], r["scenario"], r["variant"], r["seed"]): r for r in rows}
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    jobs = make_jobs(["pid", "smc"], ["small_step_40"], ["nominal", "friction_+50"], [0])
+    rows = run_sweep(jobs, out, workers=1, progress=False)
+    return out, jobs, rows
+
+
+def test_names_are_the_documented_ones():
+    for s in ("step_10_80", "step_80_10", "small_step_limp_home", "small_step_40", "ramp_10_80", "pedal"):
+        assert s in SCENARIOS
+    for v in ("nominal", "supply_9V", "supply_16V", "coil_-40C", "coil_125C", "friction_-50", "friction_+50",
+              "springs_-20", "springs_+20", "sensor_noise_high"):
+        assert v in VARIANTS
+    assert set(REQUIRED) <= set(CSV_COLUMNS)
+
+
+def test_unknown_names_list_valid_ones():
+    with pytest.raises(ValueError, match="step_10_80"):
+        make_jobs(["pid"], ["step_10_90"], ["nominal"], [0])
+    with pytest.raises(ValueError, match="supply_9V"):
+        make_jobs(["pid"], ["pedal"], ["supply_8V"], [0])
+    with pytest.raises(ValueError, match="ETB-3B-v0"):
+        make_jobs(["pid"], ["pedal"], ["nominal"], [0], env_id="ETB-4B-v0")
+    with pytest.raises(ValueError, match="smc"):
+        run_sweep(make_jobs(["pdi"], ["pedal"], ["nominal"], [0]), "/tmp/unused_bench_dir", workers=1, progress=False)
+
+
+def test_variant_changes_the_plant_seen_by_the_env():
+    kw = VARIANTS["coil_125C"].env_kwargs("ETB-3B-v0")
+    assert kw["params"]["drive.resistance_ohm"] == pytest.approx(1.25 * (1 + 0.00393 * 105))
+    kw = VARIANTS["friction_-50"].env_kwargs("ETB-3B-v0")
+    assert kw["params"]["friction.coulomb_Nm"] == pytest.approx(0.1)
+    assert VARIANTS["supply_9V"].env_kwargs("ETB-1A-v0")["supply_V"] == 9.0
+
+
+def test_csv_rows_and_metrics(tiny):
+    out, jobs, rows = tiny
+    with open(out / "results.csv", newline="") as fh:
+        got = list(csv.DictReader(fh))
+    assert len(got) == len(jobs) == 4
+    assert set(REQUIRED) <= set(got[0])
+    nominal_pid = _rows_by_key(rows)[("pid", "small_step_40", "nominal", 0)]
+    assert nominal_pid["stable"]
+    assert nominal_pid["steady_state_error_deg"] < 0.1
+    assert 0 < nominal_pid["rise_time_s"] < 0.2
+    assert (out / "traces").is_dir()
+
+
+def test_metrics_on_a_synthetic_response():
+    import numpy as np
+
+    sc = SCENARIOS["step_10_80"]
+    t = np.arange(0, sc.duration_s + 1e-9, 1e-3)
+    phi = np.where(t < sc.step_at_s, 10.0, 80.0 - 70.0 * np.exp(-(t - sc.step_at_s) / 0.01))
+    tr = {"t_s": t, "angle_deg": phi, "reference_deg": np.where(t < sc.step_at_s, 10.0, 80.0),
+          "duty": np.zeros_like(t), "current_A": np.zeros_like(t)}
+    m = metrics(tr, sc)
+    assert m["rise_time_s"] == pytest.approx(0.01 * math.log(9), abs=1.5e-3)
+    assert m["settling_time_s"] == pytest.approx(0.01 * math.log(50), abs=1.5e-3)
+    assert m["overshoot_pct"] == 0.0 and m["stable"]
+
+
+def test_resume_completes_an_interrupted_sweep(tiny, tmp_path):
+    out, jobs, rows = tiny
+    src = read_results(out / "results.csv")
+    # simulate an interruption: only the first row made it to disk
+    from etb_gym.benchmark import write_results
+
+    write_results(tmp_path / "results.csv", src[:1])
+    calls = []
+    rows2 = run_sweep(jobs, tmp_path, workers=1, resume=True, progress=False,
+                      trace_filter=lambda j: calls.append(j) or False)
+    assert len(calls) == len(jobs) - 1
+    assert _rows_by_key(rows2).keys() == _rows_by_key(src).keys()
+    for k, r in _rows_by_key(src).items():
+        assert _rows_by_key(rows2)[k]["settling_time_s"] == pytest.approx(r["settling_time_s"], nan_ok=True)
+
+
+def test_report_marks_targets(tiny):
+    out, jobs, rows = tiny
+    md = bench_report.markdown(rows)
+    assert "## Targets" in md and ("pass" in md or "FAIL" in md)
+    assert "| ETB-3B-v0 | pid | small_step_40 |" in md
+    files = bench_report.plot_scenarios(out, rows)
+    assert files and files[0].stat().st_size > 5000
+
+
+def test_same_results_with_process_pool_and_ray(tiny, tmp_path):
+    out, jobs, rows = tiny
+    pool = run_sweep(jobs, tmp_path / "pool", workers=2, progress=False)
+    assert bench_report.markdown(pool) == bench_report.markdown(rows)
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        pytest.skip("ray is not installed (optional extra: pip install 'etb-gym[ray]')")
+    viaray = run_sweep(jobs, tmp_path / "ray", ray_address="local", progress=False)
+    assert bench_report.markdown(viaray) == bench_report.markdown(rows)
+
+
+def test_cli_help_and_bad_args():
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "benchmark.py"), "--help"], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0 and "--resume" in r.stdout and "--ray" in r.stdout
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "benchmark.py"), "--scenario", "nope"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "step_10_80" in r.stderr
