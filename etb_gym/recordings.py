@@ -203,7 +203,7 @@ def validate(columns: dict, *, source: str = "<memory>", name: str | None = None
     if hi - lo < 1.7 and -0.05 <= lo and hi <= 1.7:
         raise RecordingError(f"{source}: column {ka!r}: values span only {lo:.3g}..{hi:.3g}: this looks like a 0..1 "
                              f"fraction or radians, expected the plate angle in degrees")
-    if hi - lo < 5.0 and 0.0 <= lo and hi <= 5.5 and abs(np.median(ang) - 3.0) > 2.0:
+    if hi - lo < 5.0 and 0.0 <= lo and hi <= 5.5 and not (hi - lo < 2.0 and abs(np.median(ang) - 3.0) < 1.0):
         raise RecordingError(f"{source}: column {ka!r}: values span only {lo:.3g}..{hi:.3g}: this looks like a sensor "
                              f"voltage (0-5 V), expected the plate angle in degrees")
     if lo < -30 or hi > 120:

@@ -1,7 +1,9 @@
 """Where the model and the recordings disagree: windows in time, operating regimes, and residual tests.
 
-    moving RMS      m(t) = sqrt(mean of r^2 over a window W around t);   significant where m > K * sigma_n
-                    (sigma_n: the noise floor, measurement.noise_floor); windows closer than GAP_S merge,
+    moving RMS      m(t) = sqrt(mean of r^2 over a window W around t);   significant where
+                    m > K * sqrt(sigma_n^2 + tol^2)  (sigma_n: the noise floor, measurement.noise_floor;
+                    tol(t): moving RMS of the model's own integration error, the difference between the
+                    calibrated model at its substeps and at twice as many); windows closer than GAP_S merge,
                     windows shorter than MIN_WINDOW_S are dropped
     regimes         RMS and mean of the residual inside angle bands, near limp-home and the stops, by
                     direction and size of the velocity, by current level and by third of the recording;
@@ -65,12 +67,15 @@ def moving_rms(r: np.ndarray, n: int) -> np.ndarray:
     return np.sqrt(smooth(r ** 2, n))
 
 
-def windows(t_s: np.ndarray, r_deg: np.ndarray, sigma_deg: float, window_s: float = WINDOW_S,
+def windows(t_s: np.ndarray, r_deg: np.ndarray, sigma_deg: float, tol_deg=None, window_s: float = WINDOW_S,
             k: float = K_WINDOW) -> list:
-    """Time windows [t0, t1] where the moving RMS of the residual exceeds k * sigma."""
+    """Time windows [t0, t1] where the moving RMS of the residual exceeds k * sqrt(sigma^2 + tol^2)
+    (tol: the model's own numerical accuracy, see run.numerical_tolerance)."""
     dt = float(np.median(np.diff(t_s)))
-    m = moving_rms(r_deg, max(1, int(round(window_s / dt))))
-    sig = m > k * sigma_deg
+    w = max(1, int(round(window_s / dt)))
+    m = moving_rms(r_deg, w)
+    floor = sigma_deg if tol_deg is None else np.sqrt(sigma_deg ** 2 + moving_rms(tol_deg, w) ** 2)
+    sig = m > k * floor
     out = []
     idx = np.flatnonzero(np.diff(np.concatenate([[0], sig.astype(int), [0]])))
     for a, b in zip(idx[::2], idx[1::2]):

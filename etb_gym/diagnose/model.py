@@ -34,6 +34,7 @@ class RecData:
     resolution_deg: float
     rest: list              # rest runs (a, b)
     current_sigma_A: float
+    tol_deg: np.ndarray | None = None      # the model's own integration error along the recording
 
 
 @dataclasses.dataclass

@@ -71,7 +71,7 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
     before, after = _merge_tables(tab0), _merge_tables(tab1)
     sig0 = _significant_residual(data, res0)
     sig1 = _significant_residual(data, res1)
-    windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg) for rd, r in zip(data.recs, res0)}
+    windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg) for rd, r in zip(data.recs, res0)}
     effects = []
     prev = nominal
     prev_res = res0
@@ -108,7 +108,7 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
     unexplained = []
     if sig1:
         for rd, r, tab in zip(data.recs, res1, tab1):
-            wins = L.windows(rd.rec.t_s, r, rd.noise_deg)
+            wins = L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg)
             mask = np.zeros(r.size, bool)
             for a, b in wins:
                 mask |= (rd.rec.t_s >= a) & (rd.rec.t_s <= b)
