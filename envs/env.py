@@ -13,7 +13,7 @@ from etb_gym.components.sensor import PositionSensor, PositionSensorParams
 from etb_gym.plant import MODELS, Plant, make_plant
 
 from . import observation as obsmod
-from .references import RANDOM_REFERENCES, Reference, as_reference, make_reference
+from .references import RANDOM_REFERENCES, PiecewiseLinear, Reference, Steps, as_reference, make_reference
 
 RAD2DEG = 180.0 / math.pi
 TRACKING_SCALE_DEG = 90.0
@@ -345,11 +345,18 @@ class ETBEnv(gym.Env):
         if hit is not None and hit[0] is ref:
             return hit[1]
         tab = np.asarray(ref.table(self._t_grid), dtype=float)
-        if tab.shape != self._t_grid.shape or not np.all(np.isfinite(tab)):
-            raise ValueError(f"reference {ref!r} gave non-finite or misshaped values over the episode")
+        if isinstance(ref, (Steps, PiecewiseLinear)):
+            vals = ref.values_deg          # validated finite; the table only holds (interpolated) knot values
+            if tab.shape != self._t_grid.shape:
+                raise ValueError(f"reference {ref!r} gave a table of shape {tab.shape}")
+        else:
+            vals = tab
+            if tab.shape != self._t_grid.shape or not np.all(np.isfinite(tab)):
+                raise ValueError(f"reference {ref!r} gave non-finite or misshaped values over the episode")
         lo, hi = self._lo_deg - REFERENCE_MARGIN_DEG, self._hi_deg + REFERENCE_MARGIN_DEG
-        if tab.min() < lo or tab.max() > hi:
-            raise ValueError(f"reference {ref!r} leaves [{lo:g}, {hi:g}] deg (range {tab.min():g}..{tab.max():g} "
+        vmin, vmax = vals.min(), vals.max()
+        if vmin < lo or vmax > hi:
+            raise ValueError(f"reference {ref!r} leaves [{lo:g}, {hi:g}] deg (range {vmin:g}..{vmax:g} "
                              f"deg): expected set points within the end stops +- {REFERENCE_MARGIN_DEG:g} deg")
         if len(self._table_cache) > 16:
             self._table_cache.clear()

@@ -295,13 +295,19 @@ def random_steps(rng: np.random.Generator = None, duration_s: float = 3.0, min_d
         raise ValueError(f"random_steps.small_step_prob = {small_step_prob!r} is invalid: expected a probability in [0, 1]")
     small = _positive("random_steps", "small_step_deg", small_step_deg)
     n = int(math.ceil(duration_s / lo_dw)) + 1          # enough plateaus in the worst case
-    u = rng.random((4, n))                                # one draw: dwell, kind, big level, small level
-    values = np.where(u[1] < p, np.clip(LIMP_HOME_DEG + small * (2.0 * u[3] - 1.0), lo, hi), lo + (hi - lo) * u[2])
-    times = np.empty(n)
-    times[0] = 0.0
-    np.cumsum(lo_dw + (hi_dw - lo_dw) * u[0, :-1], out=times[1:])
-    m = int(np.searchsorted(times, duration_s))
-    return Steps._trusted(times[:m].copy(), values[:m].copy())
+    u = rng.random(4 * n).tolist()                        # one draw: dwell, kind, big level, small level
+    times, values, t = [], [], 0.0
+    for k in range(0, 4 * n, 4):                          # plain floats: ~13 plateaus, cheaper than numpy
+        if t >= duration_s:
+            break
+        if u[k + 1] < p:
+            v = min(max(LIMP_HOME_DEG + small * (2.0 * u[k + 3] - 1.0), lo), hi)
+        else:
+            v = lo + (hi - lo) * u[k + 2]
+        times.append(t)
+        values.append(v)
+        t += lo_dw + (hi_dw - lo_dw) * u[k]
+    return Steps._trusted(np.array(times), np.array(values))
 
 
 def pedal(rng: np.random.Generator = None, duration_s: float = 3.0, idle_deg: float = 4.0,
