@@ -15,7 +15,10 @@ Equivalent control (ds/dt = 0 for the nominal model)::
 * the spring (rate + limp-home preload, the core kernel) is evaluated at the reference, not at the noisy
   measurement, so the preload discontinuity at limp-home is not toggled by sensor noise;
 * friction estimate T_f_hat: the static level T_s while the plate rests, the Coulomb level T_c while it
-  slides, in the direction of s (smoothed over Phi_f);
+  slides, in the direction of the error: sat(lambda e / Phi_f) (default, ``friction_on_error=True``); the
+  classical direction sat(s / Phi_f) is available with ``friction_on_error=False``, but s carries the
+  differentiated sensor noise and toggles the compensation at every sample (measured: stair-case
+  stick-slip on large steps and 3x the duty total variation);
 * the back-EMF is compensated along the *reference* velocity r'. Compensating the measured velocity
   would cancel the coil's electrical damping k^2/R, the only damping of the plant's electro-mechanical
   mode (L with J, ~220 rad/s, see controllers/design.py), and the linearized loop loses its margins.
@@ -98,8 +101,9 @@ class SlidingModeController(BaseController):
                  k0_rad_s: float | None = None, friction_level: float = 1.0, eta_Nm: float = 0.05,
                  friction_layer_rad_s: float | None = None, rest_speed_rad_s: float = 0.5,
                  derivative_cutoff_rad_s: float = 600.0, gain_margin_db: float = 6.0, phase_margin_deg: float = 45.0,
-                 supply_V: float | None = None, name: str | None = None):
+                 friction_on_error: bool = True, supply_V: float | None = None, name: str | None = None):
         self.model = m = resolve_model(model, params)
+        self.friction_on_error = bool(friction_on_error)
         super().__init__(m.control_period_s if dt is None else dt)
         own = "SlidingModeController"
         if name is not None:
@@ -149,7 +153,8 @@ class SlidingModeController(BaseController):
         de = rd - v
         s = self.surface(e, de)
         level = m.static_Nm if abs(v) < self.rest_speed_rad_s else m.coulomb_Nm
-        t_f = self.friction_level * level * max(-1.0, min(1.0, s / self.friction_layer))
+        arg = (e * self.lambda_rad_s if self.friction_on_error else s) / self.friction_layer
+        t_f = self.friction_level * level * max(-1.0, min(1.0, arg))
         k = m.torque_constant_Nm_per_A
         rj_k = m.resistance_ohm * m.inertia_kg_m2 / k
         u_eq = (m.volts_per_Nm * (m.spring_torque_Nm(r) + t_f)

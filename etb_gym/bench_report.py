@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .benchmark import SCENARIOS, SMALL_STEP_SCENARIOS, VARIANTS, Job, load_trace
+from .benchmark import SCENARIOS, SMALL_STEP_SCENARIOS, VARIANTS, Job, _publish, load_trace
 
 TABLE_COLUMNS = (("settling_time_s", "settle [ms]", 1e3), ("rise_time_s", "rise [ms]", 1e3),
                  ("overshoot_pct", "overshoot [%]", 1.0), ("steady_state_error_deg", "SSE [deg]", 1.0),
@@ -153,7 +153,7 @@ def write_text(path, text: str) -> None:
     fd, tmp = tempfile.mkstemp(dir=p.parent, suffix=".tmp")
     with os.fdopen(fd, "w") as fh:
         fh.write(text)
-    os.replace(tmp, p)
+    _publish(tmp, p)
 
 
 def plot_scenarios(out_dir, rows, env_id=None, seed=None, variant="nominal") -> list[Path]:
@@ -205,6 +205,6 @@ def plot_scenarios(out_dir, rows, env_id=None, seed=None, variant="nominal") -> 
             os.close(fd)
             fig.savefig(tmp, dpi=90, format="png")
             plt.close(fig)
-            os.replace(tmp, p)
+            _publish(tmp, p)
             files.append(p)
     return files

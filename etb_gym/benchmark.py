@@ -266,7 +266,7 @@ def save_trace(trace_dir, job: Job, trace: Mapping) -> None:
     fd, tmp = tempfile.mkstemp(dir=p.parent, suffix=".npz.tmp")
     with os.fdopen(fd, "wb") as fh:
         np.savez_compressed(fh, **trace)
-    os.replace(tmp, p)
+    _publish(tmp, p)
 
 
 def load_trace(trace_dir, job: Job):
@@ -317,7 +317,7 @@ def write_results(path, rows: list[dict]) -> None:
         w.writeheader()
         for r in rows:
             w.writerow({c: _fmt(r[c]) for c in CSV_COLUMNS})
-    os.replace(tmp, p)
+    _publish(tmp, p)
 
 
 def _fmt(v):
@@ -326,6 +326,14 @@ def _fmt(v):
     if isinstance(v, float):
         return "" if math.isnan(v) else f"{v:.6g}"
     return v
+
+
+def _publish(tmp, path) -> None:
+    """Give a finished temporary file the usual permissions (mkstemp makes it 0600) and move it in place."""
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    os.replace(tmp, path)
 
 
 def row_key(r) -> tuple:

@@ -11,7 +11,7 @@ from etb_gym.controllers.design import design_pid, linearize
 from etb_gym.envs.observation import encode
 
 
-def closed_loop(ctrl, a0, a1, n=450, at=250, seed=0, params=None):
+def closed_loop(ctrl, a0, a1, n=700, at=250, seed=0, params=None):
     plant = make_plant("3B", params)
     sensor = PositionSensor()
     rng = np.random.default_rng(seed)
