@@ -1,0 +1,306 @@
+"""The RL task on top of the ETB envs: policy features, action repeat, training reward and training references.
+
+One implementation serves training and deployment: :class:`PolicyFeatures` turns the env's observation
+stream (``etb_gym.envs.observation``: sensed angle, reference, error, last duty) into the policy input, both
+inside :class:`TrainingVecEnv` (N sub-envs of the native :class:`~etb_gym.envs.vector.ETBVectorEnv`) and
+inside the deployed controller (``etb_gym.rl.RLController``, N = 1), so the policy sees the same numbers in
+the benchmark as in training.
+
+Features (all updated every 1 ms control period from the observation, read at decision times)::
+
+    e      = r - y_sensed [deg]
+    v      = filtered derivative of y_sensed [deg/s]   (controllers.base.VelocityEstimator, 300 rad/s)
+    v_r    = filtered derivative of r [deg/s]          (same estimator, 100 rad/s: ramp / pedal rate)
+    z      = leaky integral of clip(e, +-1 deg)        z_k = a z_{k-1} + T clip(e_k), a = exp(-T / 0.1 s)
+
+    features = [ (y-45)/45, (r-45)/45, e/45, tanh(e/0.25), tanh(e/3), tanh((y-3)/1), d_prev,
+                 tanh(v/50), tanh(v/1000), tanh(v_r/200), tanh(z/0.02) ]
+
+The fine error scales (0.25 deg, limp-home distance 1 deg) let a small network resolve the sub-degree errors
+that the benchmark's 0.5 deg steps need, next to the 70 deg transients.
+
+Action repeat ``k``: the policy decides every k control periods and the duty is held in between (the env
+still runs at 1 ms). Training reward per decision (true plate angle, e = r - phi, averaged over the k
+periods, d the new duty, d_prev the previous decision)::
+
+    reward = -( w_lin |e|/45 + w_log ln(1 + |e|/e0) / ln(1 + 45/e0) ) - w_rate ((d - d_prev)/2)^2
+
+The linear term rewards a fast slew on large steps, the logarithmic one precision below a degree (its slope
+is 1/(e0 + |e|)); the env's own reward is not used. Training references (:func:`draw_reference`) chain
+large steps, small steps anywhere (incl. 40 deg), small steps across limp-home and ramps, from a plate at
+rest at a drawn angle, so every benchmark scenario type appears in training.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Mapping
+
+import numpy as np
+from stable_baselines3.common.vec_env import VecEnv
+
+from etb_gym.controllers.base import VelocityEstimator
+from etb_gym.envs import observation as obsmod
+
+FEATURE_NAMES = ("angle", "reference", "error", "error_fine", "error_mid", "limp_home_side", "last_duty",
+                 "velocity_slow", "velocity_fast", "reference_rate", "error_integral")
+FEATURES_VERSION = 1
+
+
+@dataclass(frozen=True)
+class TaskConfig:
+    """Everything about the MDP the policy is trained on (stored in config.json, needed to deploy it)."""
+
+    action_repeat: int = 2              # control periods per policy decision
+    episode_s: float = 1.5              # training episode length [s]
+    w_lin: float = 1.0                  # reward weights (module docstring)
+    w_log: float = 1.0
+    e0_deg: float = 0.05
+    w_rate: float = 0.05
+    velocity_cutoff_rad_s: float = 300.0
+    reference_rate_cutoff_rad_s: float = 100.0
+    integral_tau_s: float = 0.1
+    features_version: int = FEATURES_VERSION
+
+    def __post_init__(self):
+        if not (isinstance(self.action_repeat, (int, np.integer)) and 1 <= self.action_repeat <= 50):
+            raise ValueError(f"task.action_repeat = {self.action_repeat!r} is invalid: expected an integer in [1, 50]")
+        for f in ("episode_s", "e0_deg", "velocity_cutoff_rad_s", "reference_rate_cutoff_rad_s", "integral_tau_s"):
+            v = getattr(self, f)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"task.{f} = {v!r} is invalid: expected a finite number > 0")
+        for f in ("w_lin", "w_log", "w_rate"):
+            v = getattr(self, f)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"task.{f} = {v!r} is invalid: expected a finite weight >= 0")
+        if self.features_version != FEATURES_VERSION:
+            raise ValueError(f"task.features_version = {self.features_version!r}: this etb_gym computes policy "
+                             f"features version {FEATURES_VERSION}; retrain the policy")
+
+    @classmethod
+    def from_dict(cls, d: Mapping | None) -> "TaskConfig":
+        d = dict(d or {})
+        valid = [f.name for f in fields(cls)]
+        bad = sorted(set(d) - set(valid))
+        if bad:
+            raise ValueError(f"task: unknown field(s) {bad}; valid: {valid}")
+        return cls(**d)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class PolicyFeatures:
+    """The policy input for N parallel observation streams (module docstring). ``reset_rows(rows, obs)`` starts
+    streams from their first observation, ``update(obs)`` feeds the next control period of all streams,
+    ``value()`` returns the (N, len(FEATURE_NAMES)) float32 features."""
+
+    def __init__(self, n: int, dt: float, task: TaskConfig):
+        self.n, self.dt, self.task = int(n), float(dt), task
+        self.vel = VelocityEstimator(dt, task.velocity_cutoff_rad_s)
+        self.ref_vel = VelocityEstimator(dt, task.reference_rate_cutoff_rad_s)
+        self.a_int = math.exp(-dt / task.integral_tau_s)
+        self.vel.y_prev, self.vel.v = np.zeros(n), np.zeros(n)
+        self.ref_vel.y_prev, self.ref_vel.v = np.zeros(n), np.zeros(n)
+        self.z = np.zeros(n)
+        self.obs = np.zeros((n, 4))
+
+    @staticmethod
+    def _split(obs):
+        o = np.asarray(obs, dtype=np.float64)
+        y = o[:, 0] * obsmod.ANGLE_SCALE_DEG + obsmod.ANGLE_CENTER_DEG
+        r = o[:, 1] * obsmod.ANGLE_SCALE_DEG + obsmod.ANGLE_CENTER_DEG
+        return o, y, r
+
+    def reset_rows(self, rows, obs_rows) -> None:
+        o, y, r = self._split(obs_rows)
+        self.vel.y_prev[rows], self.vel.v[rows] = y, 0.0
+        self.ref_vel.y_prev[rows], self.ref_vel.v[rows] = r, 0.0
+        self.z[rows] = 0.0
+        self.obs[rows] = o[:, :4]
+
+    def update(self, obs) -> None:
+        o, y, r = self._split(obs)
+        self.vel.update(y)
+        self.ref_vel.update(r)
+        e = o[:, 2] * obsmod.ANGLE_SCALE_DEG
+        self.z = self.a_int * self.z + self.dt * np.clip(e, -1.0, 1.0)
+        self.obs[:] = o[:, :4]
+
+    def value(self) -> np.ndarray:
+        o = self.obs
+        y = o[:, 0] * obsmod.ANGLE_SCALE_DEG + obsmod.ANGLE_CENTER_DEG
+        e = o[:, 2] * obsmod.ANGLE_SCALE_DEG
+        v, vr = self.vel.v, self.ref_vel.v
+        out = np.empty((self.n, len(FEATURE_NAMES)), np.float32)
+        out[:, 0:3] = o[:, 0:3]
+        out[:, 3] = np.tanh(e / 0.25)
+        out[:, 4] = np.tanh(e / 3.0)
+        out[:, 5] = np.tanh((y - 3.0) / 1.0)
+        out[:, 6] = o[:, 3]
+        out[:, 7] = np.tanh(v / 50.0)
+        out[:, 8] = np.tanh(v / 1000.0)
+        out[:, 9] = np.tanh(vr / 200.0)
+        out[:, 10] = np.tanh(self.z / 0.02)
+        return out
+
+
+def tracking_cost(e_deg: np.ndarray, task: TaskConfig) -> np.ndarray:
+    """Per-period tracking cost w_lin |e|/45 + w_log ln(1 + |e|/e0) / ln(1 + 45/e0) (module docstring)."""
+    a = np.abs(e_deg)
+    return task.w_lin * a / 45.0 + task.w_log * np.log1p(a / task.e0_deg) / math.log1p(45.0 / task.e0_deg)
+
+
+# ------------------------------------------------------------------------------------------------ references
+LIMP_HOME_DEG = 3.0
+LOW_DEG, HIGH_DEG = 0.5, 85.0
+
+
+def draw_reference(rng: np.random.Generator, duration_s: float, dt: float) -> tuple[dict, float]:
+    """A training reference and the initial plate angle (at rest): (``piecewise_linear`` spec, angle_deg).
+
+    The plate starts at rest at a0 (30 %: near limp-home 3 +- 3 deg, else uniform 0.5..85 deg); the reference
+    holds a0 for 0.05..0.3 s, then chains segments with dwell 0.1..0.35 s, each one of: a large step (30 %,
+    new level uniform 0.5..85 deg), a small step anywhere (30 %, +-0.1..2.5 deg), a step near / across
+    limp-home (20 %, level 3 +- 3 deg) or a ramp (20 %, to a uniform level at 50..400 deg/s). Knots lie on
+    the control grid, so a step is a one-period linear segment (the env samples the reference on the grid)."""
+    def grid(t):
+        return round(t / dt) * dt
+
+    def clip(x):
+        return float(min(HIGH_DEG, max(LOW_DEG, x)))
+
+    a0 = clip(LIMP_HOME_DEG + rng.uniform(-3.0, 3.0)) if rng.random() < 0.3 else float(rng.uniform(LOW_DEG, HIGH_DEG))
+    times, values = [0.0], [a0]
+    t, level = grid(rng.uniform(0.05, 0.3)), a0
+    while t < duration_s:
+        u = rng.random()
+        if u < 0.8:
+            if u < 0.3:
+                new = float(rng.uniform(LOW_DEG, HIGH_DEG))
+            elif u < 0.6:
+                new = clip(level + rng.choice((-1.0, 1.0)) * rng.uniform(0.1, 2.5))
+            else:
+                new = clip(LIMP_HOME_DEG + rng.uniform(-3.0, 3.0))
+            times += [t, t + dt]
+            values += [level, new]
+            t = t + dt
+        else:
+            new = float(rng.uniform(LOW_DEG, HIGH_DEG))
+            dur = max(grid(abs(new - level) / rng.uniform(50.0, 400.0)), dt)
+            times += [t, t + dur]
+            values += [level, new]
+            t = t + dur
+        level = new
+        t = grid(t + rng.uniform(0.1, 0.35))
+    times, values = np.array(times), np.array(values)
+    keep = np.concatenate([[True], np.diff(times) > 1e-12])
+    return {"name": "piecewise_linear", "times_s": times[keep].tolist(), "values_deg": values[keep].tolist()}, a0
+
+
+# ------------------------------------------------------------------------------------------------ vec env
+class TrainingVecEnv(VecEnv):
+    """An SB3 VecEnv over the native :class:`~etb_gym.envs.vector.ETBVectorEnv` (``gym.make_vec`` with the id's
+    vector entry point): features, action repeat, training reward and references of the module docstring.
+
+    Episodes of all sub-envs end together after ``task.episode_s`` (a multiple of the decision period); a
+    finished sub-env is reset at once (SB3's convention: ``infos[i]["terminal_observation"]``,
+    ``"TimeLimit.truncated": True``, so off-policy algorithms bootstrap through the time limit)."""
+
+    def __init__(self, env_id: str, n_envs: int, task: TaskConfig, seed: int = 0, randomize: bool = False,
+                 env_kwargs: Mapping | None = None):
+        import gymnasium as gym
+        from gymnasium import spaces
+
+        import etb_gym.envs  # noqa: F401  (registers the ids)
+
+        self.env_id, self.task = env_id, task
+        self.venv = gym.make_vec(env_id, num_envs=int(n_envs), vectorization_mode="vector_entry_point",
+                                 episode_s=task.episode_s, randomize=bool(randomize), **dict(env_kwargs or {}))
+        base = self.venv.env
+        self.dt = base.dt
+        steps = round(task.episode_s / self.dt)
+        if steps % task.action_repeat:
+            raise ValueError(f"task.episode_s = {task.episode_s} s is {steps} control periods: expected a multiple "
+                             f"of task.action_repeat = {task.action_repeat}")
+        self.render_mode = None
+        obs_space = spaces.Box(-np.inf, np.inf, (len(FEATURE_NAMES),), np.float32)
+        super().__init__(int(n_envs), obs_space, spaces.Box(-1.0, 1.0, (1,), np.float32))
+        self.features = PolicyFeatures(self.num_envs, self.dt, task)
+        self.rng = np.random.default_rng(seed)
+        self._seed = seed
+        self._actions = np.zeros(self.num_envs)
+        self._prev = np.zeros(self.num_envs)
+
+    # -- episodes
+    def _start(self, rows):
+        """Reset ``rows`` one by one with their own drawn reference and initial angle."""
+        N = self.num_envs
+        obs = None
+        for i in rows:
+            ref, a0 = draw_reference(self.rng, self.task.episode_s, self.dt)
+            mask = np.zeros(N, bool)
+            mask[i] = True
+            obs, _ = self.venv.reset(options={"reset_mask": mask, "reference": ref, "angle_deg": a0})
+        rows = np.asarray(rows)
+        self.features.reset_rows(rows, obs[rows])
+        self._prev[rows] = 0.0
+
+    def reset(self):
+        seed = self._seeds[0] if any(s is not None for s in self._seeds) else self._seed
+        self.rng = np.random.default_rng(seed)
+        self.venv.reset(seed=int(seed))
+        self._start(range(self.num_envs))
+        self._reset_seeds()
+        self._reset_options()
+        return self.features.value()
+
+    def step_async(self, actions):
+        a = np.asarray(actions, dtype=np.float64).reshape(self.num_envs)
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"actions {a}: expected finite duty cycles")
+        self._actions = np.clip(a, -1.0, 1.0)
+
+    def step_wait(self):
+        task, k = self.task, self.task.action_repeat
+        cost = np.zeros(self.num_envs)
+        act = self._actions.reshape(-1, 1)
+        for j in range(k):
+            obs, _, _, trunc, info = self.venv.step(act)
+            self.features.update(obs)
+            cost += tracking_cost(info["reference_deg"] - info["angle_deg"], task)
+            if trunc.any() and (j < k - 1 or not trunc.all()):
+                raise RuntimeError("sub-env episodes fell out of step with the decision period")
+        dd = self._actions - self._prev
+        rewards = (-(cost / k) - task.w_rate * (0.5 * dd) ** 2).astype(np.float32)
+        self._prev = self._actions.copy()
+        feats = self.features.value()
+        dones = np.asarray(trunc, bool).copy()
+        infos = [{} for _ in range(self.num_envs)]
+        if dones.any():
+            rows = np.flatnonzero(dones)
+            for i in rows:
+                infos[i]["terminal_observation"] = feats[i].copy()
+                infos[i]["TimeLimit.truncated"] = True
+            self._start(rows)
+            feats = self.features.value()
+        return feats, rewards, dones, infos
+
+    # -- the rest of the VecEnv API
+    def close(self):
+        self.venv.close()
+
+    def get_attr(self, attr_name, indices=None):
+        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name, value, indices=None):
+        setattr(self, attr_name, value)
+
+    def env_method(self, method_name, *args, indices=None, **kwargs):
+        return [getattr(self, method_name)(*args, **kwargs) for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class, indices=None):
+        return [False for _ in self._get_indices(indices)]
+
+    def get_images(self):
+        raise NotImplementedError("the training vec env does not render; use gym.make(id, render_mode=...)")
