@@ -65,6 +65,7 @@ def main(argv=None):
     ap.add_argument("--n", type=int, nargs="+", default=[1, 64, 1024], help="vector env sizes")
     ap.add_argument("--seconds", type=float, default=2.0, help="timing duration per measurement")
     ap.add_argument("--compare", default=None, help="also time this id (e.g. Pendulum-v1) as a yardstick")
+    ap.add_argument("--threads", type=int, default=None, help="num_threads of the vector env (default: auto)")
     a = ap.parse_args(argv)
     if a.compare:
         r = single_env_rate(a.compare, a.seconds)
@@ -73,7 +74,7 @@ def main(argv=None):
     print(f"{a.id:12s} single env: {r['steps_per_s']:10.0f} steps/s ({r['us_per_step']:.1f} us/step, "
           f"reset {r['us_per_reset']:.1f} us)")
     for n in a.n:
-        v = vector_env_rate(a.id, n, a.seconds)
+        v = vector_env_rate(a.id, n, a.seconds, **({} if a.threads is None else {"num_threads": a.threads}))
         print(f"{a.id:12s} vector N={n:<5d}: {v['plant_steps_per_s']:10.0f} plant steps/s "
               f"({v['vector_steps_per_s']:.0f} vector steps/s)")
 

@@ -14,12 +14,14 @@ Autoreset is Gymnasium's default ``NEXT_STEP`` mode: the step after a sub-env is
 with ``_key`` masks, as ``SyncVectorEnv`` builds it. Rendering is not supported here (use
 ``vectorization_mode="sync"`` to render sub-envs).
 
-``num_threads`` (keyword, default: 1 below 512 sub-envs, else numba's thread count) sets the threads of
-the parallel batch step; waking a thread pool costs more than stepping a few hundred plants.
+``num_threads`` (keyword) sets the threads of the parallel batch step. Default: 1 below 512 sub-envs
+(waking a thread pool costs more than stepping a few hundred plants), else the idle cores at construction
+(cpu count - load average, at least 1, at most numba's thread count): on a shared machine a pool that
+competes with other processes is slower than one thread. Results do not depend on it.
 """
 from __future__ import annotations
 
-import math
+import os
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -41,6 +43,16 @@ def _max_threads() -> int:
     import numba
 
     return numba.config.NUMBA_NUM_THREADS
+
+
+def _idle_threads() -> int:
+    """Threads worth waking: the cores not already busy (cpu count - 1-minute load average), at least 1.
+    On a shared machine a thread pool competing with other processes is slower than one thread."""
+    try:
+        idle = int(round((os.cpu_count() or 1) - os.getloadavg()[0]))
+    except (AttributeError, OSError):
+        idle = _max_threads()
+    return max(1, min(_max_threads(), idle))
 
 
 class _Threads:
@@ -74,7 +86,7 @@ class ETBVectorEnv(VectorEnv):
         if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
             raise ValueError(f"num_envs = {num_envs!r}: expected an integer >= 1")
         if num_threads is None:
-            num_threads = 1 if num_envs < PARALLEL_FROM else _max_threads()
+            num_threads = 1 if num_envs < PARALLEL_FROM else _idle_threads()
         elif not (isinstance(num_threads, (int, np.integer)) and 1 <= num_threads <= _max_threads()):
             raise ValueError(f"num_threads = {num_threads!r}: expected an integer in [1, {_max_threads()}]")
         self.num_threads = int(num_threads)
