@@ -583,6 +583,12 @@ class ETBEnv(gym.Env):
         return None if self.render_mode == "human" else frame
 
     @property
+    def episode(self) -> Episode | None:
+        """What the last reset drew: ``P``, ``supply_V``, ``x0``, ``reference``, ``ref_table``,
+        ``noise_std_rad`` and the randomization ``draws`` ({quantity: value})."""
+        return self._episode
+
+    @property
     def model_name(self) -> str:
         return f"ETB-{self.plant.model}" if self.plant.model else "custom plant"
 

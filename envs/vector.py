@@ -301,5 +301,10 @@ class ETBVectorEnv(VectorEnv):
         self._obs = obs
         return obs.copy(), reward, np.zeros(N, bool), trunc, self._with_masks(info)
 
+    @property
+    def episodes(self) -> list:
+        """The current :class:`~etb_gym.envs.env.Episode` of every sub-env (what its last reset drew)."""
+        return list(self._episodes)
+
     def close_extras(self, **kwargs):
         self.env.close()

@@ -190,11 +190,11 @@ def test_randomization_draws_in_documented_ranges():
     nominal = env.plant.params_dict()
     for seed in range(5):
         env.reset(seed=seed)
-        d = env._episode.draws
+        d = env.episode.draws
         assert set(d) == set(DEFAULT_RANDOMIZATION)
         for k, (lo, hi) in DEFAULT_RANDOMIZATION.items():
             assert lo <= d[k] <= hi
-        P = env._episode.P
+        P = env.episode.P
         expect = env.plant.param_vector({
             "drive.resistance_ohm": nominal["drive.resistance_ohm"] * (1 + 0.00393 * (d["coil_temperature_C"] - 20)),
             "friction.coulomb_Nm": nominal["friction.coulomb_Nm"] * d["friction_scale"],
@@ -204,10 +204,10 @@ def test_randomization_draws_in_documented_ranges():
             "spring.rate_Nm_per_rad": nominal["spring.rate_Nm_per_rad"] * d["spring_scale"],
             "rotor.inertia_kg_m2": nominal["rotor.inertia_kg_m2"] * d["inertia_scale"]})
         assert np.array_equal(P, expect)
-        assert env._episode.supply_V == d["supply_V"]
+        assert env.episode.supply_V == d["supply_V"]
     only = ETBEnv(randomize={"supply_V": (10.0, 11.0)})
     _, info = only.reset(seed=0)
-    assert 10 <= info["supply_V"] <= 11 and only._episode.P is only._P_nominal
+    assert 10 <= info["supply_V"] <= 11 and only.episode.P is only._P_nominal
 
 
 def test_plant_from_file(tmp_path):
