@@ -181,13 +181,18 @@ class RunConfig:
 def _hp_names(algo):
     import inspect
 
-    return [p for p in inspect.signature(algorithm_class(algo).__init__).parameters if p not in ("self", "policy", "env")]
+    return [p for p in inspect.signature(algorithm_class(algo).__init__).parameters if p not in _NOT_HP]
+
+
+# constructor arguments that the run sets itself (not hyperparameters)
+_NOT_HP = ("self", "policy", "env", "_init_setup_model", "policy_kwargs", "device", "seed", "tensorboard_log",
+           "verbose", "action_noise")
 
 
 def _accepts(cls, key):
     import inspect
 
-    return key in inspect.signature(cls.__init__).parameters
+    return key in inspect.signature(cls.__init__).parameters and key not in _NOT_HP
 
 
 def _atomic_bytes(path: Path, data: bytes) -> None:
