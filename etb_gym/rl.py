@@ -814,3 +814,76 @@ def plot_learning_curve(rows: list[dict], path: Path, title: str = "") -> None:
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
     _atomic_bytes(Path(path), buf.getvalue())
+
+
+# ------------------------------------------------------------------------------------------------ comparison
+def rms_comparison(rows: Sequence[Mapping], agent: str, others: Sequence[str] = ("pid", "smc")) -> tuple[str, list]:
+    """The issue's target table from benchmark rows (``etb_gym.benchmark.read_results``): per scenario and
+    variant the RMS tracking error of ``agent`` and of the classical controllers (means over seeds), and
+    ratio = agent / min(others). Returns (Markdown, list of dict rows)."""
+    from collections import defaultdict
+
+    others = [c for c in others if c != agent]
+    acc = defaultdict(list)
+    for r in rows:
+        acc[(r["env"], r["scenario"], r["variant"], r["controller"])].append(float(r["rms_error_deg"]))
+    keys = sorted({(e, s, v) for e, s, v, c in acc if c == agent},
+                  key=lambda k: (k[0], k[2] != "nominal", k[2], k[1]))
+    if not keys:
+        raise ValueError(f"no benchmark rows for controller {agent!r}: controllers present are "
+                         f"{sorted({c for *_, c in acc})}")
+    table = []
+    for e, s, v in keys:
+        row = {"env": e, "scenario": s, "variant": v, agent: float(np.mean(acc[(e, s, v, agent)]))}
+        for c in others:
+            row[c] = float(np.mean(acc[(e, s, v, c)])) if (e, s, v, c) in acc else math.nan
+        best = min((row[c] for c in others if math.isfinite(row[c])), default=math.nan)
+        row["ratio"] = row[agent] / best if math.isfinite(best) and best > 0 else math.nan
+        table.append(row)
+    ratios = np.array([r["ratio"] for r in table])
+    ok = ratios <= 1.2
+    better = ratios < 1.0
+    lines = [f"# RMS tracking error: {agent} vs {' / '.join(others)}", "",
+             f"ratio = RMS({agent}) / min(RMS of {', '.join(others)}); target <= 1.2 everywhere, < 1 somewhere.",
+             "", f"**{int(ok.sum())}/{len(table)}** runs within 1.2x, **{int(better.sum())}/{len(table)}** better than "
+             f"both (nominal: {int(sum(o for o, r in zip(ok, table) if r['variant'] == 'nominal'))}/"
+             f"{sum(r['variant'] == 'nominal' for r in table)} within 1.2x; geometric-mean ratio "
+             f"{float(np.exp(np.mean(np.log(np.clip(ratios, 1e-9, None))))):.3g}).", "",
+             f"| scenario | variant | {agent} [deg] | " + " | ".join(f"{c} [deg]" for c in others) + " | ratio | |",
+             "|---|---|---|" + "---|" * len(others) + "---|---|"]
+    for r in table:
+        mark = "better than both" if r["ratio"] < 1.0 else ("within 1.2x" if r["ratio"] <= 1.2 else "**miss**")
+        lines.append(f"| {r['scenario']} | {r['variant']} | {r[agent]:.4g} | "
+                     + " | ".join(f"{r[c]:.4g}" for c in others) + f" | {r['ratio']:.3g} | {mark} |")
+    return "\n".join(lines) + "\n", table
+
+
+def main(argv=None) -> int:
+    """``python -m etb_gym.rl compare OUT/results.csv --agent rl:DIR [--md FILE] [--csv FILE]``."""
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m etb_gym.rl", description="RL helpers: the RMS comparison table")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("compare", help="RMS tracking error of an agent vs PID and SMC from benchmark results.csv")
+    c.add_argument("results", help="results.csv of scripts/benchmark.py")
+    c.add_argument("--agent", required=True, help="the agent's controller spec as in results.csv, e.g. rl:DIR")
+    c.add_argument("--md", default=None, help="write the Markdown table here")
+    c.add_argument("--csv", default=None, help="write the table rows here")
+    a = p.parse_args(argv)
+    from etb_gym.benchmark import read_results
+
+    md, table = rms_comparison(read_results(a.results), a.agent)
+    print(md)
+    if a.md:
+        _atomic_bytes(Path(a.md), md.encode())
+    if a.csv:
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=list(table[0]))
+        w.writeheader()
+        w.writerows(table)
+        _atomic_bytes(Path(a.csv), buf.getvalue().encode())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
