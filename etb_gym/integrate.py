@@ -121,9 +121,12 @@ def substep(t, h, x, u, P, dx, aux):
 {adv_block}
 
 
-def control_step(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux):
-    """One control period. Returns True if the state is finite afterwards."""
-    dx = np.empty(N_STATES)
+def control_step_dx(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux, dx):
+    """One control period, with ``dx`` (N_STATES,) as scratch. Returns True if the state is finite afterwards."""
+    x = borrow(x)
+    P = borrow(P)
+    aux = borrow(aux)
+    dx = borrow(dx)
     hmax = dt / n_sub
     if not switching:
         u = duty * supply_V
@@ -164,6 +167,12 @@ def control_step(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux):
     return ok
 
 
+def control_step(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux):
+    """One control period. Returns True if the state is finite afterwards."""
+    dx = np.empty(N_STATES)
+    return control_step_dx(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux, dx)
+
+
 def simulate(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, X, A):
     """Steps len(duty) control periods from x0; X[k+1], A[k+1] after period k (X[0] = x0).
 
@@ -175,7 +184,7 @@ def simulate(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, X, A):
     X[0, :] = x
     A[0, :] = aux
     for k in range(duty.shape[0]):
-        ok = control_step(x, duty[k], supply_V[k], P, t0 + k * dt, dt, n_sub, switching, f_pwm, aux)
+        ok = control_step_dx(x, duty[k], supply_V[k], P, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
         X[k + 1, :] = x
         A[k + 1, :] = aux
         if not ok:
@@ -184,8 +193,25 @@ def simulate(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, X, A):
 
 
 def batch_step(X, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, AUX, OK):
+    """N plants (rows of X, P, AUX), one control period each, in parallel over plants."""
+    DX = np.empty((X.shape[0], N_STATES))
+    Xb = borrow(X)
+    Pb = borrow(P)
+    Ab = borrow(AUX)
     for b in prange(X.shape[0]):
-        OK[b] = control_step(X[b], duty[b], supply_V[b], P[b], t0[b], dt, n_sub, switching, f_pwm, AUX[b])
+        OK[b] = control_step_dx(Xb[b], duty[b], supply_V[b], Pb[b], t0[b], dt, n_sub, switching, f_pwm,
+                                Ab[b], DX[b])
+
+
+def batch_step_serial(X, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, AUX, OK):
+    """batch_step on the calling thread (no thread-pool launch: for one plant or one thread)."""
+    DX = np.empty((X.shape[0], N_STATES))
+    Xb = borrow(X)
+    Pb = borrow(P)
+    Ab = borrow(AUX)
+    for b in range(X.shape[0]):
+        OK[b] = control_step_dx(Xb[b], duty[b], supply_V[b], Pb[b], t0[b], dt, n_sub, switching, f_pwm,
+                                Ab[b], DX[b])
 '''
 
 
@@ -219,6 +245,96 @@ def _importable(fn) -> bool:
         and "<locals>" not in f.__qualname__
 
 
+def _identity(a):
+    return a
+
+
+if HAVE_NUMBA:
+    import numba as _nb
+    from numba.extending import intrinsic as _intrinsic
+    from numba.np.arrayobj import make_array as _make_array
+
+    @_intrinsic
+    def borrow(typingctx, arr):
+        """A view of array argument ``arr`` without a reference count (meminfo NULL).
+
+        Slicing a numba array increments and decrements its reference count atomically; the stepper
+        slices x, P and dx for every kernel call of every substep, and in the parallel batch step all
+        rows share one count, so the threads fought over one cache line. Views of a borrowed array
+        skip the count. Only ever borrow a *function argument* (its caller keeps it alive), never a
+        local temporary."""
+        if not isinstance(arr, _nb.types.Array):
+            return None
+
+        def codegen(context, builder, sig, args):
+            src = _make_array(arr)(context, builder, value=args[0])
+            dst = _make_array(arr)(context, builder)
+            for f in ("nitems", "itemsize", "data", "shape", "strides"):
+                setattr(dst, f, getattr(src, f))
+            dst.meminfo = context.get_constant_null(_nb.types.MemInfoPointer(arr.dtype))
+            dst.parent = context.get_constant_null(_nb.types.pyobject)
+            return dst._getvalue()
+
+        return arr(arr), codegen
+else:  # pragma: no cover
+    borrow = _identity
+
+
+def configure_thread_pool() -> str:
+    """Make numba's parallel batch step sleep, not spin, while it waits (called once at import).
+
+    numba's default OpenMP layer busy-waits between parallel regions (libgomp's default spin). On a
+    machine whose cores are shared (CI, several jobs, an RL learner stepping its envs) the spinning
+    thread steals the core its partner needs: measured on a loaded 2-core machine, the 1024-plant
+    batch step took 5.6-7.8 us of CPU per plant-step with spinning vs 1.4 us with sleeping
+    (docs/speed.md). So, unless the user chose (``OMP_WAIT_POLICY``, ``GOMP_SPINCOUNT`` or
+    ``NUMBA_THREADING_LAYER`` set), set ``OMP_WAIT_POLICY=PASSIVE`` before libgomp loads, or, if an
+    OpenMP runtime is already loaded (torch imported first), pick numba's sleeping ``workqueue``
+    layer. Returns what it did."""
+    if not HAVE_NUMBA:
+        return "no numba"
+    env = os.environ
+    if any(k in env for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "NUMBA_THREADING_LAYER")):
+        return "user setting kept"
+    import numba
+
+    try:
+        with open("/proc/self/maps") as fh:
+            gomp_loaded = "libgomp" in fh.read()
+    except OSError:
+        gomp_loaded = False
+    if not gomp_loaded:
+        env["OMP_WAIT_POLICY"] = "PASSIVE"
+        return "OMP_WAIT_POLICY=PASSIVE"
+    if numba.config.THREADING_LAYER == "default":
+        try:
+            numba.threading_layer()          # raises until a parallel region ran
+            return "thread pool already running"
+        except ValueError:
+            numba.config.THREADING_LAYER = "workqueue"
+            return "numba threading layer workqueue"
+    return "user setting kept"
+
+
+THREAD_POOL = configure_thread_pool()
+
+
+# numba options of the generated functions. rhs and substep are inlined at numba-IR level into their
+# callers: LLVM then keeps the state in registers across substeps and prunes the reference counting of
+# the kernels' slices (measured: -35 % CPU per plant-step for 3B, docs/speed.md). No fastmath: it would
+# change rounding against the plain path (contract -> FMA) or fold away the finiteness check (nnan/ninf).
+JIT_OPTIONS = {
+    "rhs": {"inline": "always"},
+    "substep": {"inline": "always"},
+    "control_step_dx": {},
+    "control_step": {},
+    "simulate": {},
+    "batch_step": {"parallel": True},
+    "batch_step_serial": {},
+}
+STEPPER_REVISION = "2"   # bump when borrow() or JIT_OPTIONS change: part of the kernel-cache digest
+
+
 class Engine:
     """The compiled (or plain) stepper of one plant composition."""
 
@@ -250,6 +366,7 @@ class Engine:
     def _build_plain(self, kernels, advances):
         ns = self._namespace(kernels, advances, plain=True)
         ns["prange"] = range
+        ns["borrow"] = _identity
         exec(compile(self.source, "<etb_gym plain stepper>", "exec"), ns)
         return _Fns(ns)
 
@@ -268,10 +385,10 @@ class Engine:
         if fns is None:  # kernels defined somewhere numba cannot cache from: compile in memory
             ns = self._namespace(kernels, advances, plain=False)
             ns["prange"] = numba.prange
+            ns["borrow"] = borrow
             exec(compile(self.source, "<etb_gym fast stepper>", "exec"), ns)
-            for name in ("rhs", "substep", "control_step", "simulate"):
-                ns[name] = numba.njit(ns[name])
-            ns["batch_step"] = numba.njit(parallel=True)(ns["batch_step"])
+            for name, opts in JIT_OPTIONS.items():
+                ns[name] = numba.njit(**opts)(ns[name])
             fns = _Fns(ns)
         Engine._cache[key] = fns
         return fns
@@ -285,13 +402,15 @@ class Engine:
                 g = py_func(af)
                 imports.append(f"from {g.__module__} import {g.__name__} as a{k}")
         src = self.source.replace("import numpy as np\n", "import numpy as np\nfrom numba import njit, prange\n"
+                                  "from etb_gym.integrate import borrow\n"
                                   + "\n".join(imports) + "\n", 1)
-        for name in ("rhs", "substep", "control_step", "simulate"):
-            src = src.replace(f"\ndef {name}(", f"\n@njit(cache=True)\ndef {name}(", 1)
-        src = src.replace("\ndef batch_step(", "\n@njit(cache=True, parallel=True)\ndef batch_step(", 1)
+        for name, opts in JIT_OPTIONS.items():
+            args = ", ".join(f"{k}={v!r}" for k, v in dict(opts, cache=True).items())
+            src = src.replace(f"\ndef {name}(", f"\n@njit({args})\ndef {name}(", 1)
         import numba
 
-        digest = hashlib.sha256((src + _kernel_digest(components) + numba.__version__).encode()).hexdigest()[:20]
+        digest = hashlib.sha256((src + _kernel_digest(components) + numba.__version__ + STEPPER_REVISION)
+                                .encode()).hexdigest()[:20]
         d = _cache_dir()
         d.mkdir(parents=True, exist_ok=True)
         path = d / f"etb_kernel_{digest}.py"
@@ -318,6 +437,8 @@ class _Fns:
         self.control_step = ns["control_step"]
         self.simulate = ns["simulate"]
         self.batch_step = ns["batch_step"]
+        self.batch_step_serial = ns["batch_step_serial"]
+        self.control_step_dx = ns["control_step_dx"]
 
 
 def solve_ivp_reference(engine: Engine, P, x0, duty, supply_V, dt, t0=0.0, switching=False, f_pwm=5000.0,
