@@ -291,7 +291,7 @@ class RLController:
     def __init__(self, path: str | os.PathLike | None = None, *, model=None, config: RunConfig | None = None,
                  obs_rms=None, name: str | None = None):
         if model is None:
-            model, config, obs_rms, label = _load_policy(path)
+            model, config, obs_rms, label = _load_policy_cached(path)
         elif config is None:
             raise ValueError("RLController(model=...): pass the run's config= as well")
         else:
@@ -352,6 +352,27 @@ def read_config(run_dir: Path) -> RunConfig:
     except json.JSONDecodeError as exc:
         raise ValueError(f"{p}: not valid JSON ({exc})") from None
     return RunConfig.from_dict(d)
+
+
+_POLICY_CACHE: dict = {}
+
+
+def _load_policy_cached(path):
+    """:func:`_load_policy`, memoized on the resolved path and the files' modification times (the benchmark
+    builds a controller per run; the policy itself is stateless, the controller's features are per instance)."""
+    p = Path(str(path)).expanduser() if path is not None else None
+    key = None
+    if p is not None and p.exists():
+        files = [p / "model.zip", p / "config.json"] if p.is_dir() else [p, p.parent / "config.json"]
+        key = (str(p.resolve()), tuple(f.stat().st_mtime_ns if f.exists() else 0 for f in files))
+        hit = _POLICY_CACHE.get(key)
+        if hit is not None:
+            return hit
+    out = _load_policy(path)
+    if key is not None:
+        _POLICY_CACHE.clear()
+        _POLICY_CACHE[key] = out
+    return out
 
 
 def _load_policy(path):
