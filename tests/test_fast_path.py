@@ -1,0 +1,211 @@
+"""The compiled fast path equals the plain reference path; the batch step equals N single steps; a plant
+without compiled kernels falls back visibly, and scripts/bench_speed.py says so (issue 7)."""
+import dataclasses
+import importlib.util
+import json
+import math
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from etb_gym import make_plant
+from etb_gym.components import LuGreFriction
+from etb_gym.components.base import REGISTRY, Component, Params
+from etb_gym.components.effects_electrical import CoilHeating
+from etb_gym.components.effects_mechanical import Backlash
+from etb_gym.integrate import FastPathUnavailableWarning
+from etb_gym.jit import HAVE_NUMBA
+
+ROOT = Path(__file__).resolve().parents[1]
+needs_numba = pytest.mark.skipif(not HAVE_NUMBA, reason="the fast path needs numba")
+
+
+def _plants():
+    return {
+        "1A": make_plant("1A"),
+        "2B": make_plant("2B"),
+        "3B": make_plant("3B"),
+        "3C": make_plant("3C"),
+        "3B-switching": make_plant("3B", pwm_mode="switching"),
+        "2C-switching-9V": make_plant("2C", pwm_mode="switching", supply_V=9.0),
+        "3B+effects": make_plant("3B", effects=[CoilHeating(), Backlash(play_rad=0.01)]),
+    }
+
+
+@needs_numba
+@pytest.mark.parametrize("name", list(_plants()))
+def test_fast_equals_plain(name, rich_duty):
+    p = _plants()[name]
+    assert p.fast
+    n = 60 if "switching" in name else 200
+    d = np.concatenate([rich_duty[300:300 + n // 2], rich_duty[1200:1200 + n // 2]])   # stop + chirp regimes
+    a = p.simulate(d, angle_deg=20.0, path="fast")
+    b = p.simulate(d, angle_deg=20.0, path="plain")
+    np.testing.assert_allclose(a.states, b.states, rtol=1e-10, atol=1e-12)
+    for k in a.torques_Nm:
+        np.testing.assert_allclose(a.torques_Nm[k], b.torques_Nm[k], rtol=1e-10, atol=1e-12)
+    assert np.ptp(a.angle_deg) > 1.0            # the excitation moved the plate: not a trivial comparison
+
+
+@needs_numba
+def test_fast_single_step_equals_plain_engine():
+    p = make_plant("3B", pwm_mode="switching")
+    x_fast = p.initial_state(math.radians(40.0))
+    x_plain = x_fast.copy()
+    aux_f, aux_p = np.zeros(4), np.zeros(4)
+    for k, d in enumerate((0.9, -0.3, 1e-12, 1.0 - 1e-12, 0.0, -1.0)):   # incl. duties a hair from 0 and 1
+        p.engine.fns.control_step(x_fast, d, 12.0, p.P, k * 1e-3, 1e-3, 20, True, 5000.0, aux_f)
+        p.engine.plain.control_step(x_plain, d, 12.0, p.P, k * 1e-3, 1e-3, 20, True, 5000.0, aux_p)
+        np.testing.assert_allclose(x_fast, x_plain, rtol=1e-11, atol=1e-13)
+        np.testing.assert_allclose(aux_f, aux_p, rtol=1e-11, atol=1e-13)
+
+
+def _batch_inputs(p, N, seed=0):
+    rng = np.random.default_rng(seed)
+    X = np.stack([p.initial_state(math.radians(a)) for a in rng.uniform(0.5, 85.0, N)])
+    P = np.stack([p.param_vector({"friction.coulomb_Nm": c, "friction.static_Nm": c * 1.1,
+                                  "rotor.inertia_kg_m2": 30e-6 * s})
+                  for c, s in zip(rng.uniform(0.1, 0.3, N), rng.uniform(0.9, 1.1, N))])
+    V = rng.uniform(9.0, 16.0, N)
+    D = rng.uniform(-1.0, 1.0, (25, N))
+    return X, P, V, D
+
+
+@pytest.mark.parametrize("pwm_mode", ["averaged", "switching"])
+@pytest.mark.parametrize("parallel", [None, False])
+def test_batch_step_equals_single_steps(pwm_mode, parallel):
+    p = make_plant("3B", pwm_mode=pwm_mode)
+    N = 12
+    X, P, V, D = _batch_inputs(p, N)
+    Xs = X.copy()
+    AUX, auxs = np.zeros((N, 4)), np.zeros((N, 4))
+    T = np.zeros(N)
+    for k in range(D.shape[0]):
+        ok = p.step_batch(X, D[k], V, P, T, AUX, parallel=parallel)
+        assert ok.dtype == np.bool_ and ok.all()
+        for b in range(N):
+            p.step(Xs[b], D[k, b], supply_V=V[b], t0=T[b], aux=auxs[b], P=P[b])
+        T += p.control_period_s
+    # the same compiled control step, no fastmath: bit for bit
+    np.testing.assert_array_equal(X, Xs)
+    np.testing.assert_array_equal(AUX, auxs)
+    assert np.ptp(X[:, 0]) > 0.1
+
+
+@needs_numba
+def test_batch_step_plain_engine_agrees_and_reports_nonfinite():
+    p = make_plant("3A")
+    N = 4
+    X, P, V, D = _batch_inputs(p, N, seed=1)
+    Xp, AUX, AUXp, OK, OKp = X.copy(), np.zeros((N, 4)), np.zeros((N, 4)), np.zeros(N, bool), np.zeros(N, bool)
+    args = (D[0], V, P, np.zeros(N), 1e-3, 20, False, 5000.0)
+    p.engine.fns.batch_step(X, *args, AUX, OK)
+    p.engine.plain.batch_step(Xp, *args, AUXp, OKp)
+    np.testing.assert_allclose(X, Xp, rtol=1e-11, atol=1e-13)
+    assert OK.all() and OKp.all()
+    X[2, 1] = np.nan                                   # a broken row is flagged, the others still step
+    ok = p.step_batch(X, D[1], V, P, np.zeros(N), AUX)
+    assert ok.tolist() == [True, True, False, True]
+
+
+def test_step_batch_does_not_leak_or_alias():
+    """The batch step borrows its arrays without reference counts: inputs stay valid and unaliased."""
+    p = make_plant("3B")
+    X, P, V, D = _batch_inputs(p, 6)
+    P0 = P.copy()
+    refs = [sys.getrefcount(a) for a in (X, P, V)]
+    for k in range(5):
+        p.step_batch(X, D[k], V, P, np.zeros(6), np.zeros((6, 4)))
+    assert [sys.getrefcount(a) for a in (X, P, V)] == refs
+    np.testing.assert_array_equal(P, P0)               # parameters are read only
+    assert np.all(np.isfinite(X))
+
+
+# ---------------------------------------------------------------------------------------------- plain fallback
+@dataclasses.dataclass(frozen=True)
+class _PlainTorqueParams(Params):
+    torque_Nm: float = 0.01
+
+
+def _plain_torque_kernel(t, phi, omega, i, u, s, p, ds):
+    return p[0], 0.0, 0.0
+
+
+class _PlainTorque(Component):
+    """A component whose kernel is not compiled (as a user's first draft of a new effect would be)."""
+
+    Params = _PlainTorqueParams
+    kernel = staticmethod(_plain_torque_kernel)
+
+
+@needs_numba
+def test_plain_fallback_is_visible_and_still_correct():
+    with pytest.warns(FastPathUnavailableWarning, match="_PlainTorque"):
+        p = make_plant("3B", effects=[_PlainTorque()])
+    assert p.fast is False and make_plant("3B").fast is True
+    X, P, V, D = _batch_inputs(p, 3)
+    Xs = X.copy()
+    p.step_batch(X, D[0], V, P, np.zeros(3), np.zeros((3, 5)))
+    for b in range(3):
+        p.step(Xs[b], D[0, b], supply_V=V[b], P=P[b])
+    np.testing.assert_array_equal(X, Xs)
+
+
+def _load_bench():
+    spec = importlib.util.spec_from_file_location("bench_speed", ROOT / "scripts" / "bench_speed.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+QUICK = ["--repeats", "1", "--seconds", "0.01", "--num-envs", "1", "3", "--no-gem", "--no-reference",
+         "--excitation-s", "0.05"]
+REQUIRED = ("etb_steps_per_s", "etb_switching_realtime_factor", "vector_steps_per_s", "pendulum_steps_per_s",
+            "gem_steps_per_s", "reset_us", "ratio_etb_vs_pendulum", "ratio_etb_vs_gem", "excitation_fast_s",
+            "excitation_solve_ivp_s", "fast_path")
+
+
+def test_bench_speed_quick_run_prints_table_and_json_last(capsys, tmp_path):
+    bench = _load_bench()
+    out_json = tmp_path / "speed.json"
+    res = bench.main(QUICK + ["--json-out", str(out_json)])
+    lines = capsys.readouterr().out.strip().splitlines()
+    last = json.loads(lines[-1])
+    assert set(REQUIRED) <= set(last)
+    assert last["gem_steps_per_s"] is None and last["ratio_etb_vs_gem"] is None
+    assert set(last["vector_steps_per_s"]) == {"1", "3"}
+    assert all(v > 0 for v in last["vector_steps_per_s"].values())
+    assert last["etb_steps_per_s"] > 0 and last["reset_us"] > 0
+    assert math.isclose(last["etb_switching_realtime_factor"], last["etb_switching_steps_per_s"] * 1e-3)
+    assert last["fast_path"] is HAVE_NUMBA
+    assert any(l.startswith("| gym.make(\"ETB-3B-v0\")") for l in lines)
+    assert json.loads(out_json.read_text()) == last == json.loads(json.dumps(res))
+
+
+def test_bench_speed_says_when_a_plant_is_on_the_plain_path(capsys, tmp_path, monkeypatch):
+    from etb_gym.plantfile import save_plant
+
+    class PlainTorqueEffect(_PlainTorque):
+        kind = "test.plain_torque_bench"
+
+    monkeypatch.setitem(REGISTRY, PlainTorqueEffect.kind, PlainTorqueEffect)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FastPathUnavailableWarning)
+        path = tmp_path / "plain.json"
+        save_plant(make_plant("3B", effects=[PlainTorqueEffect()]), path)
+        res = _load_bench().main(["--repeats", "1", "--seconds", "0.01", "--num-envs", "2", "--no-gem",
+                                  "--no-reference", "--excitation-s", "0.02", "--plant", str(path)])
+    out = capsys.readouterr().out
+    assert res["fast_path"] is False
+    assert "PLAIN" in out and "no compiled kernel" in out
+
+
+def test_bench_speed_rejects_bad_arguments(capsys):
+    bench = _load_bench()
+    for bad in (["--repeats", "0"], ["--seconds", "-1"], ["--num-envs", "0"], ["--plant", "/nonexistent.toml"]):
+        with pytest.raises(SystemExit):
+            bench.parse_args(bad)
+        assert "expected" in capsys.readouterr().err
