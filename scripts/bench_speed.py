@@ -156,6 +156,9 @@ class VectorCase(Case):
         self.key, self.label, self.sim_dt, self.fast, self.n_per_iter = f"vector_{N}", f"make_vec N={N}", dt, fast, N
         self.envs = gym.make_vec(env_id, num_envs=N, **env_kw)
         self.kind = type(self.envs).__name__
+        threads = getattr(self.envs, "num_threads", None)
+        if threads is not None:
+            self.kind += f", {threads} thread(s)"
         self.envs.action_space.seed(seed)
         self.actions = [self.envs.action_space.sample() for _ in range(16)]
         self.envs.reset(seed=seed)
