@@ -209,3 +209,24 @@ def test_bench_speed_rejects_bad_arguments(capsys):
         with pytest.raises(SystemExit):
             bench.parse_args(bad)
         assert "expected" in capsys.readouterr().err
+
+
+@needs_numba
+@pytest.mark.parametrize("env, expected", [
+    ({}, "OMP_WAIT_POLICY=PASSIVE"),
+    ({"OMP_WAIT_POLICY": "ACTIVE"}, "user setting kept"),
+    ({"NUMBA_THREADING_LAYER": "workqueue"}, "user setting kept"),
+])
+def test_thread_pool_sleeps_unless_the_user_chose(env, expected):
+    import os
+    import subprocess
+
+    clean = {k: v for k, v in os.environ.items()
+             if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "NUMBA_THREADING_LAYER")}
+    code = ("import os, etb_gym.integrate as I; "
+            "print(I.THREAD_POOL + '|' + os.environ.get('OMP_WAIT_POLICY', '-'))")
+    out = subprocess.run([sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True,
+                         timeout=120, check=True).stdout.strip().splitlines()[-1]
+    pool, policy = out.split("|")
+    assert pool == expected
+    assert policy == env.get("OMP_WAIT_POLICY", "PASSIVE" if not env else "-")
