@@ -168,7 +168,9 @@ class RunConfig:
     @classmethod
     def from_dict(cls, d: Mapping) -> "RunConfig":
         d = dict(d)
-        d.pop("hyperparams_resolved", None)
+        resolved = d.pop("hyperparams_resolved", None)
+        if resolved is not None:          # pin the values the run used (defaults may change between versions)
+            d["hyperparams"] = {**resolved, **d.get("hyperparams", {})}
         for k in ("versions", "env_dt_s", "features"):
             d.pop(k, None)
         valid = [f.name for f in fields(cls)]
@@ -195,12 +197,19 @@ def _accepts(cls, key):
     return key in inspect.signature(cls.__init__).parameters and key not in _NOT_HP
 
 
+def _umask() -> int:
+    m = os.umask(0)
+    os.umask(m)
+    return m
+
+
 def _atomic_bytes(path: Path, data: bytes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
+        os.chmod(tmp, 0o666 & ~_umask())          # mkstemp creates 0600; give the usual file mode
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -226,6 +235,7 @@ def _save_pickle_of(save_fn, path: Path) -> None:
     try:
         with open(tmp, "wb") as fh:
             save_fn(fh)
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
