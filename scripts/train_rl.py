@@ -125,8 +125,11 @@ def main(argv=None) -> int:
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
         print(f"train_rl.py: error: {exc}", file=sys.stderr)
         return 2
-    print(f"done in {time.perf_counter() - t0:.0f} s -> {out}/model.zip (best: {out}/best_model.zip); "
-          f"benchmark it with: python scripts/benchmark.py --controller rl:{out} --controller pid --controller smc")
+    from pathlib import Path
+
+    best = f" (best evaluation: {out}/best_model.zip)" if (Path(out) / "best_model.zip").exists() else ""
+    print(f"done in {time.perf_counter() - t0:.0f} s -> {out}/model.zip{best}; benchmark it with: "
+          f"python scripts/benchmark.py --controller rl:{out} --controller pid --controller smc")
     return 0
 
 

@@ -220,6 +220,7 @@ def test_rl_prefix_errors_name_the_problem(tmp_path, smoke_run):
     (wrong / "model.zip").write_bytes((out / "model.zip").read_bytes())
     cfg = json.loads((out / "config.json").read_text())
     cfg["algo"], cfg["hyperparams"] = "ppo", {}
+    cfg.pop("hyperparams_resolved")
     (wrong / "config.json").write_text(json.dumps(cfg))
     with pytest.raises(ValueError, match="cannot load .* as a PPO policy"):
         make_controller(f"rl:{wrong}")
@@ -227,3 +228,19 @@ def test_rl_prefix_errors_name_the_problem(tmp_path, smoke_run):
         RunConfig(algo="a2c").validate()
     with pytest.raises(ValueError, match="'learning_starts' is not understood by ppo"):
         RunConfig(algo="ppo", hyperparams={"learning_starts": 10}).validate()
+
+
+def test_rms_comparison_ratios_and_marks():
+    from etb_gym.rl import rms_comparison
+
+    def row(c, s, v, rms):
+        return {"env": "ETB-3B-v0", "controller": c, "scenario": s, "variant": v, "seed": 0, "rms_error_deg": rms}
+
+    rows = [row("rl:x", "pedal", "nominal", 1.0), row("pid", "pedal", "nominal", 2.0), row("smc", "pedal", "nominal", 0.8),
+            row("rl:x", "step_10_80", "supply_9V", 5.0), row("pid", "step_10_80", "supply_9V", 10.0),
+            row("smc", "step_10_80", "supply_9V", 20.0)]
+    md, table = rms_comparison(rows, "rl:x")
+    assert [round(r["ratio"], 3) for r in table] == [1.25, 0.5]
+    assert "**1/2** runs within 1.2x, **1/2** better than both" in md and "**miss**" in md
+    with pytest.raises(ValueError, match="no benchmark rows for controller 'rl:y'"):
+        rms_comparison(rows, "rl:y")
