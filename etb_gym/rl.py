@@ -100,7 +100,8 @@ class RunConfig:
     timesteps: int = 100_000           # policy decisions (transitions) summed over sub-envs
     n_envs: int = 8
     seed: int = 0
-    randomize: bool = False            # the env's per-episode parameter randomization (ETBEnv randomize=True)
+    randomize: bool | dict = False     # the env's per-episode randomization: True (its defaults) or
+                                       # {quantity: [low, high]} overriding some of its default ranges
     normalize: bool = False            # VecNormalize observations and rewards (see docs/rl.md: off by default)
     task: dict = field(default_factory=dict)
     hyperparams: dict = field(default_factory=dict)   # overrides of ALGORITHMS[algo]["defaults"]
@@ -132,6 +133,13 @@ class RunConfig:
         if not (isinstance(self.time_limit_s, (int, float)) and math.isfinite(self.time_limit_s)
                 and self.time_limit_s >= 0):
             raise ValueError(f"time_limit_s = {self.time_limit_s!r} is invalid: expected seconds >= 0 (0: no limit)")
+        if not isinstance(self.randomize, (bool, dict)):
+            raise ValueError(f"randomize = {self.randomize!r} is invalid: expected true/false or a dict "
+                             "{quantity: [low, high]}")
+        if isinstance(self.randomize, dict):
+            from etb_gym.envs.env import ETBEnv
+
+            ETBEnv(randomize=self.env_randomization())        # validates names and ranges with the env's messages
         if not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ValueError(f"seed = {self.seed!r} is invalid: expected an integer >= 0")
         TaskConfig.from_dict(self.task)
@@ -145,6 +153,14 @@ class RunConfig:
                 raise ValueError(f"hyperparameter {k!r} is not understood by {self.algo}: valid are "
                                  f"{sorted(set(defaults) | set(_hp_names(self.algo)))}")
         return self
+
+    def env_randomization(self):
+        """The env's ``randomize`` argument: False, True, or its default ranges updated with this dict."""
+        if isinstance(self.randomize, dict):
+            from etb_gym.envs.env import DEFAULT_RANDOMIZATION
+
+            return {**DEFAULT_RANDOMIZATION, **{k: tuple(v) for k, v in self.randomize.items()}}
+        return bool(self.randomize)
 
     @property
     def task_config(self) -> TaskConfig:
@@ -261,7 +277,7 @@ def make_training_env(cfg: RunConfig, seed: int | None = None, normalize_stats: 
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
     env = VecMonitor(TrainingVecEnv(cfg.env_id, cfg.n_envs, cfg.task_config, seed=cfg.seed if seed is None else seed,
-                                    randomize=cfg.randomize))
+                                    randomize=cfg.env_randomization()))
     if cfg.normalize:
         if normalize_stats is not None:
             env = VecNormalize.load(str(normalize_stats), env)
@@ -718,6 +734,8 @@ def check_resume(saved: RunConfig, requested: Mapping[str, Any]) -> None:
     """Raise if an explicitly requested setting contradicts the run being resumed."""
     for key in ("env_id", "algo", "n_envs", "randomize", "normalize"):
         v = requested.get(key)
+        if key == "randomize" and v is True and saved.randomize:
+            continue                      # --randomize on resume of a run with (custom) randomization
         if v is not None and (str(v).lower() if key == "algo" else v) != getattr(saved, key):
             raise ValueError(f"--resume: the checkpoint was trained with {key}={getattr(saved, key)!r}, not {v!r} "
                              "(incompatible checkpoint; start a new run with --out instead)")

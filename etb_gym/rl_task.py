@@ -207,7 +207,7 @@ class TrainingVecEnv(VecEnv):
     finished sub-env is reset at once (SB3's convention: ``infos[i]["terminal_observation"]``,
     ``"TimeLimit.truncated": True``, so off-policy algorithms bootstrap through the time limit)."""
 
-    def __init__(self, env_id: str, n_envs: int, task: TaskConfig, seed: int = 0, randomize: bool = False,
+    def __init__(self, env_id: str, n_envs: int, task: TaskConfig, seed: int = 0, randomize=False,
                  env_kwargs: Mapping | None = None):
         import gymnasium as gym
         from gymnasium import spaces
@@ -216,7 +216,7 @@ class TrainingVecEnv(VecEnv):
 
         self.env_id, self.task = env_id, task
         self.venv = gym.make_vec(env_id, num_envs=int(n_envs), vectorization_mode="vector_entry_point",
-                                 episode_s=task.episode_s, randomize=bool(randomize), **dict(env_kwargs or {}))
+                                 episode_s=task.episode_s, randomize=randomize, **dict(env_kwargs or {}))
         base = self.venv.env
         self.dt = base.dt
         steps = round(task.episode_s / self.dt)

@@ -31,6 +31,16 @@ def _hp(text: str):
     return k.strip(), val
 
 
+def _ranges(text: str):
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"--randomize {text!r}: not JSON ({exc})") from None
+    if not isinstance(d, dict):
+        raise argparse.ArgumentTypeError(f"--randomize {text!r}: expected a JSON object {{quantity: [low, high]}}")
+    return d
+
+
 def parse_args(argv=None):
     from etb_gym.envs import ENV_IDS
     from etb_gym.rl import ALGORITHMS, available_algorithms
@@ -45,9 +55,10 @@ def parse_args(argv=None):
                         "new total")
     p.add_argument("--n-envs", type=int, default=None, help="sub-envs of the native vector env (default 8)")
     p.add_argument("--seed", type=int, default=None, help="seed of the model, the envs and the references (default 0)")
-    p.add_argument("--randomize", action="store_true", default=None,
+    p.add_argument("--randomize", nargs="?", const=True, default=None, type=_ranges, metavar="JSON",
                    help="per-episode parameter randomization of the env (supply, coil temperature, friction, "
-                        "springs, inertia, sensor noise)")
+                        "springs, inertia, sensor noise); optionally a JSON dict overriding some ranges, e.g. "
+                        "--randomize '{\"friction_scale\": [0.4, 1.6]}'")
     p.add_argument("--normalize", action="store_true", default=None,
                    help="VecNormalize observations and rewards (off by default: the features are scaled by design)")
     p.add_argument("--action-repeat", type=int, default=None, help="control periods per policy decision (default 2)")
@@ -103,7 +114,7 @@ def main(argv=None) -> int:
             out = a.resume
         else:
             cfg = RunConfig(env_id=a.env or "ETB-3B-v0", algo=(a.algo or "sac").lower(), seed=a.seed if a.seed is not None else 0,
-                            randomize=bool(a.randomize), normalize=bool(a.normalize), hyperparams=dict(a.hp))
+                            randomize=a.randomize if isinstance(a.randomize, dict) else bool(a.randomize), normalize=bool(a.normalize), hyperparams=dict(a.hp))
             for name, field in (("timesteps", "timesteps"), ("n_envs", "n_envs"), ("checkpoint_freq", "checkpoint_freq"),
                                 ("eval_freq", "eval_freq"), ("threads", "torch_threads")):
                 if getattr(a, name) is not None:

@@ -175,13 +175,18 @@ def test_training_vec_env_truncates_in_step_and_resets():
 
 
 # ------------------------------------------------------------------------------------------------ bad input
-def test_cli_rejects_unknown_algo_and_env(capsys):
+def test_cli_rejects_unknown_algo_and_env(capsys, tmp_path):
     with pytest.raises(SystemExit):
         train_rl.main(["--algo", "dqn", "--out", "x"])
     assert "unknown algorithm 'dqn'" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         train_rl.main(["--env", "ETB-9Z-v0", "--out", "x"])
     assert "unknown env 'ETB-9Z-v0'" in capsys.readouterr().err
+    assert train_rl.main(["--randomize", '{"friction_scale": [0.4, 1.6], "mass": [1, 2]}', "--out",
+                          str(tmp_path / "r")]) == 2
+    assert "unknown quantity 'mass'" in capsys.readouterr().err and not (tmp_path / "r").exists()
+    cfg = RunConfig(randomize={"friction_scale": [0.4, 1.6]}).validate()
+    assert cfg.env_randomization()["friction_scale"] == (0.4, 1.6) and "supply_V" in cfg.env_randomization()
 
 
 def test_existing_output_needs_force(tmp_path, capsys, smoke_run):
