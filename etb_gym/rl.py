@@ -742,13 +742,15 @@ def check_resume(saved: RunConfig, requested: Mapping[str, Any]) -> None:
 
 
 def train(cfg: RunConfig | None, out, *, resume: bool = False, force: bool = False, requested: Mapping | None = None,
-          timesteps: int | None = None, callbacks: Sequence = (), progress: bool = True, log=print):
+          timesteps: int | None = None, time_limit_s: float | None = None, callbacks: Sequence = (),
+          progress: bool = True, log=print):
     """Train (or, with ``resume``, continue) the run in folder ``out``; returns the model.
 
     New run: ``cfg`` is validated, ``out`` prepared (see :func:`prepare_output`), ``config.json`` written.
     Resume: the config comes from ``out/config.json`` (``requested`` settings must agree with it), the latest
     checkpoint's model, replay buffer and normalization statistics are loaded and training continues to
-    ``timesteps`` (default: the config's) without resetting the step counter. Ctrl-C / SIGTERM save a
+    ``timesteps`` (default: the config's; ``time_limit_s`` replaces the wall-time budget, which counts the
+    whole run) without resetting the step counter. Ctrl-C / SIGTERM save a
     checkpoint first, then re-raise KeyboardInterrupt."""
     import torch
 
@@ -760,7 +762,9 @@ def train(cfg: RunConfig | None, out, *, resume: bool = False, force: bool = Fal
         check_resume(cfg, requested or {})
         if timesteps is not None:
             cfg.timesteps = int(timesteps)
-            cfg.validate()
+        if time_limit_s is not None:      # a new budget for the accumulated wall time (0: none)
+            cfg.time_limit_s = float(time_limit_s)
+        cfg.validate()
     else:
         cfg = cfg.validate()
         prepare_output(out, force)

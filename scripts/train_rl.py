@@ -71,7 +71,8 @@ def parse_args(argv=None):
     p.add_argument("--eval-variant", action="append", default=None, metavar="NAME",
                    help="benchmark plant variant(s) for the evaluation (default nominal)")
     p.add_argument("--time-limit-min", type=float, default=None,
-                   help="stop (as finished, with all outputs) once the run has used this many minutes of wall time")
+                   help="stop (as finished, with all outputs) once the run has used this many minutes of wall time "
+                        "(counted over all its resumes; with --resume: the new budget, 0 = none)")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default 1: the machine is shared)")
     p.add_argument("--out", default=None, help="output folder of a new run (required unless --resume)")
     p.add_argument("--resume", default=None, metavar="DIR", help="continue the run in DIR from its latest checkpoint")
@@ -110,6 +111,7 @@ def main(argv=None) -> int:
             requested = {"env_id": a.env, "algo": a.algo, "n_envs": a.n_envs, "randomize": a.randomize,
                          "normalize": a.normalize}
             train(None, a.resume, resume=True, requested=requested, timesteps=a.timesteps,
+                  time_limit_s=None if a.time_limit_min is None else 60.0 * a.time_limit_min,
                   progress=not a.no_progress)
             out = a.resume
         else:
