@@ -14,14 +14,14 @@ Autoreset is Gymnasium's default ``NEXT_STEP`` mode: the step after a sub-env is
 with ``_key`` masks, as ``SyncVectorEnv`` builds it. Rendering is not supported here (use
 ``vectorization_mode="sync"`` to render sub-envs).
 
-``num_threads`` (keyword) sets the threads of the parallel batch step. Default: 1 below 512 sub-envs
-(waking a thread pool costs more than stepping a few hundred plants), else the idle cores at construction
-(cpu count - load average, at least 1, at most numba's thread count): on a shared machine a pool that
-competes with other processes is slower than one thread. Results do not depend on it.
+``num_threads`` (keyword) sets the threads of the parallel batch step. Default: 1 below 64 sub-envs
+(waking a thread pool costs more than stepping a few dozen plants), else numba's thread count. The pool
+sleeps while it waits (etb_gym.integrate.configure_thread_pool), so on a shared machine it costs no
+more CPU than one thread and still uses whatever the other core has left: measured on the loaded 2-core
+machine of docs/speed.md, N = 1024 stepped 690k plant-steps/s with 2 threads vs 455k with 1 (N = 256:
+470k vs 348k; N = 64: 233k vs 202k). Results do not depend on it.
 """
 from __future__ import annotations
-
-import os
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -34,7 +34,7 @@ from . import observation as obsmod
 from .env import NOISE_BLOCK, RAD2DEG, ETBEnv
 
 SERIAL_UP_TO = 4      # up to this many plants: the single env's compiled control step in a loop
-PARALLEL_FROM = 512   # below this many plants one thread is faster than waking numba's thread pool
+PARALLEL_FROM = 64    # below this many plants one thread is faster than waking numba's thread pool
 
 
 def _max_threads() -> int:
@@ -43,16 +43,6 @@ def _max_threads() -> int:
     import numba
 
     return numba.config.NUMBA_NUM_THREADS
-
-
-def _idle_threads() -> int:
-    """Threads worth waking: the cores not already busy (cpu count - 1-minute load average), at least 1.
-    On a shared machine a thread pool competing with other processes is slower than one thread."""
-    try:
-        idle = int(round((os.cpu_count() or 1) - os.getloadavg()[0]))
-    except (AttributeError, OSError):
-        idle = _max_threads()
-    return max(1, min(_max_threads(), idle))
 
 
 class _Threads:
@@ -86,7 +76,7 @@ class ETBVectorEnv(VectorEnv):
         if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
             raise ValueError(f"num_envs = {num_envs!r}: expected an integer >= 1")
         if num_threads is None:
-            num_threads = 1 if num_envs < PARALLEL_FROM else _idle_threads()
+            num_threads = 1 if num_envs < PARALLEL_FROM else _max_threads()
         elif not (isinstance(num_threads, (int, np.integer)) and 1 <= num_threads <= _max_threads()):
             raise ValueError(f"num_threads = {num_threads!r}: expected an integer in [1, {_max_threads()}]")
         self.num_threads = int(num_threads)
@@ -259,13 +249,16 @@ class ETBVectorEnv(VectorEnv):
         if a.size != N:
             raise ValueError(f"actions have shape {a.shape}: expected ({N}, 1), one duty cycle per sub-env")
         a = a.reshape(N)
+        resetting = self._autoreset.any()
         live = ~self._autoreset
-        bad = ~np.isfinite(a) & live
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise ValueError(f"actions[{k}] = {a[k]!r}: expected a finite duty cycle in [-1, 1]")
-        d = np.clip(a, -1.0, 1.0)
-        d[~live] = 0.0
+        if not np.isfinite(a).all():
+            bad = ~np.isfinite(a) & live
+            if bad.any():
+                k = int(np.argmax(bad))
+                raise ValueError(f"actions[{k}] = {a[k]!r}: expected a finite duty cycle in [-1, 1]")
+        d = np.minimum(np.maximum(a, -1.0), 1.0)        # np.clip, without its Python wrapper
+        if resetting:
+            d[~live] = 0.0
         dt = env.dt
         t0 = self._K * dt
         if self.num_envs <= SERIAL_UP_TO:     # a parallel region costs more than a few plants
@@ -273,10 +266,12 @@ class ETBVectorEnv(VectorEnv):
             cs, X, V, P, A = env._control_step, self._X, self._V, self._P, self._AUX
             for i in range(self.num_envs):
                 ok[i] = cs(X[i], d[i], V[i], P[i], t0[i], dt, env._nsub, env._sw, env._fpwm, A[i])
+        elif self.num_threads == 1:
+            ok = self.plant.step_batch(self._X, d, self._V, self._P, t0, self._AUX, parallel=False)
         else:
             with self._threads:
                 ok = self.plant.step_batch(self._X, d, self._V, self._P, t0, self._AUX)
-        if not ok[live].all():
+        if not ok.all() and not ok[live].all():
             k = int(np.argmax(~ok & live))
             raise FloatingPointError(f"sub-env {k}: ETB plant state became non-finite at t = "
                                      f"{(self._K[k] + 1) * dt:.6f} s: {dict(zip(self.plant.state_names, self._X[k]))}")
@@ -289,8 +284,8 @@ class ETBVectorEnv(VectorEnv):
         self._duty = d
         obs, info = self._observe(slice(None), r, d, K * dt)
         trunc = K >= env.max_steps
-        resets = np.flatnonzero(~live)
-        if resets.size:
+        resets = np.flatnonzero(~live) if resetting else ()
+        if resetting:
             obs_r, info_r = self._reset_rows(resets, [None] * resets.size, None)
             obs[resets] = obs_r
             reward[resets] = 0.0
