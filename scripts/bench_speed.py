@@ -332,8 +332,9 @@ def build_cases(args):
                 gem_env = gym.make(GEM_ID)
                 tau = float(gem_env.unwrapped.physical_system.tau)
                 gem_env.close()
-            cases.append(GymEnvCase("gem", f'gym.make("{GEM_ID}") (gym-electric-motor '
-                                    f'{gym_electric_motor.__version__ if hasattr(gym_electric_motor, "__version__") else ""})',
+            from importlib.metadata import version
+
+            cases.append(GymEnvCase("gem", f'gym.make("{GEM_ID}") (gym-electric-motor {version("gym-electric-motor")})',
                                     lambda: gym.make(GEM_ID), args.seed, tau))
         except Exception as e:  # not installed, or its API does not fit the installed gymnasium
             gem_note = f"gym-electric-motor: not measured ({type(e).__name__}: {e})"
@@ -377,7 +378,7 @@ def excitation_timings(plant, args, bar):
 def machine_info():
     info = {"python": platform.python_version(), "machine": platform.machine(), "cpus": os.cpu_count()}
     try:
-        info["loadavg_1min"] = os.getloadavg()[0]
+        info["loadavg_1min"] = round(os.getloadavg()[0], 2)
     except OSError:
         info["loadavg_1min"] = None
     try:
