@@ -80,7 +80,7 @@ class ETBEnv(gym.Env):
     """
     ## Description
 
-    An electronic throttle body (paper models 1A..3C): a DC motor drives the throttle plate through a gear
+    An electronic throttle body (paper models 1A..3C): a permanent-magnet actuator turns the throttle plate directly
     against two preloaded return springs that meet at the limp-home angle (3 deg), heavy friction and two
     end stops (0 deg closed, 90 deg open). The agent sets the H-bridge duty cycle once per control period
     (1 ms) so that the plate angle follows a reference. The plant is integrated with the package's fixed
