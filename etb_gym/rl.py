@@ -40,7 +40,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .rl_task import FEATURE_NAMES, PolicyFeatures, TaskConfig, TrainingVecEnv
+from .rl_task import (FEATURE_NAMES, BaseControllers, PolicyFeatures, TaskConfig, TrainingVecEnv,  # noqa: F401
+                      apply_residual,
+                      feature_names)
 
 RUN_FORMAT = "etb_gym.rl.run/1"
 CHECKPOINT_DIR = "checkpoints"
@@ -302,7 +304,32 @@ def make_model(cfg: RunConfig, env, tensorboard_log: str | None):
         from stable_baselines3.common.noise import NormalActionNoise
 
         kw["action_noise"] = NormalActionNoise(np.zeros(1), np.full(1, float(noise_std)))
-    return cls("MlpPolicy", env, seed=cfg.seed, device="cpu", tensorboard_log=tensorboard_log, verbose=0, **kw)
+    model = cls("MlpPolicy", env, seed=cfg.seed, device="cpu", tensorboard_log=tensorboard_log, verbose=0, **kw)
+    if cfg.task_config.residual:
+        zero_policy_mean(model)
+    return model
+
+
+def zero_policy_mean(model) -> None:
+    """Residual mode: zero the policy's output layer (the mean action of SAC / TQC / PPO, the deterministic
+    action of TD3), so the untrained agent's deterministic residual is exactly 0: it starts as the base
+    controller. The hidden layers keep their random initialization, so gradients still flow."""
+    import torch
+
+    pol = model.policy
+    layers = []
+    if hasattr(pol, "actor") and hasattr(pol.actor, "mu"):                  # SAC, TQC, TD3
+        mu = pol.actor.mu
+        layers.append(mu if isinstance(mu, torch.nn.Linear) else [m for m in mu if isinstance(m, torch.nn.Linear)][-1])
+        if hasattr(pol, "actor_target"):                                   # TD3 keeps a target copy
+            tm = pol.actor_target.mu
+            layers.append(tm if isinstance(tm, torch.nn.Linear) else [m for m in tm if isinstance(m, torch.nn.Linear)][-1])
+    elif hasattr(pol, "action_net"):                                        # PPO
+        layers.append(pol.action_net)
+    with torch.no_grad():
+        for layer in layers:
+            layer.weight.zero_()
+            layer.bias.zero_()
 
 
 # ------------------------------------------------------------------------------------------------ controller
@@ -328,11 +355,15 @@ class RLController:
         self.name = name or label
         self.dt = _env_dt(config.env_id)
         self.features = PolicyFeatures(1, self.dt, self.task)
+        # residual mode: the same base controller as in training (built-in, designed on the nominal model)
+        self.base = BaseControllers(self.task.residual, config.env_id, 1) if self.task.residual else None
         self.reset()
 
     def reset(self, seed: int | None = None) -> None:
         self._k = 0
         self._duty = 0.0
+        self._seed = seed
+        self._residual = 0.0
 
     def _normalize(self, f):
         if self.obs_rms is None:
@@ -347,15 +378,24 @@ class RLController:
                              "(angle, reference, error, last_duty, ...)")
         if self._k == 0:
             self.features.reset_rows(np.array([0]), o[:, :4])
+            if self.base is not None:
+                self.base.reset_rows([0], o, seed=self._seed)
         else:
             self.features.update(o[:, :4])
+            if self.base is not None:
+                self.base.update(o)
         if self._k % self.task.action_repeat == 0:
-            a, _ = self.model.predict(self._normalize(self.features.value()), deterministic=True)
+            f = self.features.value(None if self.base is None else self.base.duty)
+            a, _ = self.model.predict(self._normalize(f), deterministic=True)
             d = float(np.asarray(a).reshape(-1)[0])
             if not math.isfinite(d):
                 raise FloatingPointError(f"{self.name}: the policy returned a non-finite duty ({d!r})")
-            self._duty = min(1.0, max(-1.0, d))
+            self._residual = min(1.0, max(-1.0, d))
         self._k += 1
+        if self.base is None:
+            self._duty = self._residual
+        else:
+            self._duty = float(apply_residual(self.base.duty[0], self._residual, self.task))
         return self._duty
 
     def __repr__(self):
@@ -423,10 +463,11 @@ def _load_policy(path):
     except Exception as exc:  # SB3 raises assorted errors for a zip of another algorithm / corrupt file
         raise ValueError(f"rl controller: cannot load {zip_path} as a {cfg.algo.upper()} policy "
                          f"(config.json says algo={cfg.algo!r}): {exc}") from None
-    n = len(FEATURE_NAMES)
+    names = feature_names(cfg.task_config)
+    n = len(names)
     if tuple(model.observation_space.shape) != (n,):
         raise ValueError(f"rl controller: {zip_path} expects observations of shape {model.observation_space.shape}, "
-                         f"this etb_gym builds {n} policy features {FEATURE_NAMES}")
+                         f"this etb_gym builds {n} policy features {names} for its config.json")
     obs_rms = None
     if cfg.normalize:
         stats = run_dir / "vecnormalize.pkl"
@@ -788,7 +829,7 @@ def train(cfg: RunConfig | None, out, *, resume: bool = False, force: bool = Fal
     else:
         d = cfg.to_dict()
         d["env_dt_s"] = _env_dt(cfg.env_id)
-        d["features"] = list(FEATURE_NAMES)
+        d["features"] = list(feature_names(cfg.task_config))
         d["versions"] = versions()
         _atomic_json(out / "config.json", d)
         run.env = make_training_env(cfg)

@@ -26,7 +26,21 @@ periods, d the new duty, d_prev the previous decision)::
     reward = -( w_lin |e|/45 + w_log ln(1 + |e|/e0) / ln(1 + 45/e0) ) - w_rate ((d - d_prev)/2)^2
 
 The linear term rewards a fast slew on large steps, the logarithmic one precision below a degree (its slope
-is 1/(e0 + |e|)); the env's own reward is not used. Training references (:func:`draw_reference`) chain
+is 1/(e0 + |e|)); the env's own reward is not used.
+
+Residual mode (``task.residual = "smc"`` / ``"pid"`` / ``"pid-plain"``, residual reinforcement learning,
+Silver et al. 2018, Johannink et al. 2019): a classical base controller (the built-in one of that name,
+designed on the env's nominal model by ``etb_gym.benchmark.build_controller``) runs every control period on
+the same observation stream, and the policy's action a in [-1, 1] is a bounded correction::
+
+    duty = clip(d_base + residual_scale * a, -1, 1)
+
+The base keeps its integral action and its stability margins; the policy learns to improve transients and
+robustness. The policy input gets one more feature, ``base_duty`` (the base controller's duty for the coming
+period), the rate penalty acts on the residual residual_scale * (a - a_prev), and ``w_residual a^2`` is
+subtracted from the reward so the residual stays at zero where it does not help. With a residual the
+policy's mean output starts at exactly zero (etb_gym.rl zeroes its output layer), so the untrained agent
+is the base controller. Training references (:func:`draw_reference`) chain
 large steps, small steps anywhere (incl. 40 deg), small steps across limp-home and ramps, from a plate at
 rest at a drawn angle, so every benchmark scenario type appears in training.
 """
@@ -45,6 +59,19 @@ from etb_gym.envs import observation as obsmod
 FEATURE_NAMES = ("angle", "reference", "error", "error_fine", "error_mid", "limp_home_side", "last_duty",
                  "velocity_slow", "velocity_fast", "reference_rate", "error_integral")
 FEATURES_VERSION = 1
+RESIDUAL_FEATURE = "base_duty"          # appended to FEATURE_NAMES in residual mode
+
+
+def residual_bases() -> list[str]:
+    """Valid ``task.residual`` base controllers: the built-in classical controllers."""
+    from etb_gym.controllers import CONTROLLERS
+
+    return sorted(CONTROLLERS)
+
+
+def feature_names(task: "TaskConfig | None" = None) -> tuple:
+    """The policy input's names for a task (FEATURE_NAMES, plus ``base_duty`` in residual mode)."""
+    return FEATURE_NAMES + ((RESIDUAL_FEATURE,) if task is not None and task.residual else ())
 
 
 @dataclass(frozen=True)
@@ -60,6 +87,9 @@ class TaskConfig:
     velocity_cutoff_rad_s: float = 300.0
     reference_rate_cutoff_rad_s: float = 100.0
     integral_tau_s: float = 0.1
+    residual: str = ""                  # base controller of residual RL ("" = the policy outputs the duty)
+    residual_scale: float = 0.3         # duty = clip(d_base + residual_scale * a, -1, 1)
+    w_residual: float = 0.02            # reward penalty w_residual * a^2 on the residual action
     features_version: int = FEATURES_VERSION
 
     def __post_init__(self):
@@ -69,7 +99,13 @@ class TaskConfig:
             v = getattr(self, f)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"task.{f} = {v!r} is invalid: expected a finite number > 0")
-        for f in ("w_lin", "w_log", "w_rate"):
+        if not isinstance(self.residual, str) or (self.residual and self.residual not in residual_bases()):
+            raise ValueError(f"task.residual = {self.residual!r} is invalid: expected a base controller, one of "
+                             f"{residual_bases()} (or '' for no residual)")
+        v = self.residual_scale
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and 0 < v <= 2):
+            raise ValueError(f"task.residual_scale = {v!r} is invalid: expected a duty range in (0, 2]")
+        for f in ("w_lin", "w_log", "w_rate", "w_residual"):
             v = getattr(self, f)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"task.{f} = {v!r} is invalid: expected a finite weight >= 0")
@@ -127,12 +163,18 @@ class PolicyFeatures:
         self.z = self.a_int * self.z + self.dt * np.clip(e, -1.0, 1.0)
         self.obs[:] = o[:, :4]
 
-    def value(self) -> np.ndarray:
+    def value(self, base_duty=None) -> np.ndarray:
+        """The features; in residual mode ``base_duty`` (N,) is the base controller's duty, the last column."""
         o = self.obs
         y = o[:, 0] * obsmod.ANGLE_SCALE_DEG + obsmod.ANGLE_CENTER_DEG
         e = o[:, 2] * obsmod.ANGLE_SCALE_DEG
         v, vr = self.vel.v, self.ref_vel.v
-        out = np.empty((self.n, len(FEATURE_NAMES)), np.float32)
+        nf = len(FEATURE_NAMES)
+        out = np.empty((self.n, nf + (1 if self.task.residual else 0)), np.float32)
+        if self.task.residual:
+            if base_duty is None:
+                raise ValueError("residual task: PolicyFeatures.value() needs the base controller's duty")
+            out[:, nf] = base_duty
         out[:, 0:3] = o[:, 0:3]
         out[:, 3] = np.tanh(e / 0.25)
         out[:, 4] = np.tanh(e / 3.0)
@@ -198,6 +240,39 @@ def draw_reference(rng: np.random.Generator, duration_s: float, dt: float) -> tu
     return {"name": "piecewise_linear", "times_s": times[keep].tolist(), "values_deg": values[keep].tolist()}, a0
 
 
+# ------------------------------------------------------------------------------------------------ residual
+class BaseControllers:
+    """The residual mode's base controllers of N observation streams (one classical controller instance per
+    stream, built like the benchmark builds them: designed on the env's nominal model). ``duty`` holds each
+    stream's base duty for the coming control period, computed from the stream's latest observation."""
+
+    def __init__(self, spec: str, env_id: str, n: int):
+        from etb_gym.benchmark import build_controller
+
+        if spec not in residual_bases():
+            raise ValueError(f"task.residual = {spec!r} is invalid: expected a base controller, one of "
+                             f"{residual_bases()}")
+        self.spec = spec
+        self.ctrls = [build_controller(spec, env_id) for _ in range(int(n))]
+        self.duty = np.zeros(int(n))
+
+    def reset_rows(self, rows, obs_rows, seed: int | None = None) -> None:
+        for i, o in zip(rows, np.asarray(obs_rows, dtype=np.float64)):
+            self.ctrls[i].reset(seed=seed)
+            self.duty[i] = self.ctrls[i].act(o)
+
+    def update(self, obs) -> np.ndarray:
+        o = np.asarray(obs, dtype=np.float64)
+        for i, c in enumerate(self.ctrls):
+            self.duty[i] = c.act(o[i])
+        return self.duty
+
+
+def apply_residual(base_duty, action, task: TaskConfig):
+    """duty = clip(d_base + residual_scale * a, -1, 1) (module docstring)."""
+    return np.clip(np.asarray(base_duty) + task.residual_scale * np.asarray(action), -1.0, 1.0)
+
+
 # ------------------------------------------------------------------------------------------------ vec env
 class TrainingVecEnv(VecEnv):
     """An SB3 VecEnv over the native :class:`~etb_gym.envs.vector.ETBVectorEnv` (``gym.make_vec`` with the id's
@@ -224,13 +299,17 @@ class TrainingVecEnv(VecEnv):
             raise ValueError(f"task.episode_s = {task.episode_s} s is {steps} control periods: expected a multiple "
                              f"of task.action_repeat = {task.action_repeat}")
         self.render_mode = None
-        obs_space = spaces.Box(-np.inf, np.inf, (len(FEATURE_NAMES),), np.float32)
+        obs_space = spaces.Box(-np.inf, np.inf, (len(feature_names(task)),), np.float32)
         super().__init__(int(n_envs), obs_space, spaces.Box(-1.0, 1.0, (1,), np.float32))
         self.features = PolicyFeatures(self.num_envs, self.dt, task)
         self.rng = np.random.default_rng(seed)
         self._seed = seed
         self._actions = np.zeros(self.num_envs)
         self._prev = np.zeros(self.num_envs)
+        self.base = BaseControllers(task.residual, env_id, self.num_envs) if task.residual else None
+
+    def _features(self):
+        return self.features.value(None if self.base is None else self.base.duty)
 
     # -- episodes
     def _start(self, rows):
@@ -244,6 +323,8 @@ class TrainingVecEnv(VecEnv):
             obs, _ = self.venv.reset(options={"reset_mask": mask, "reference": ref, "angle_deg": a0})
         rows = np.asarray(rows)
         self.features.reset_rows(rows, obs[rows])
+        if self.base is not None:
+            self.base.reset_rows(rows, obs[rows])
         self._prev[rows] = 0.0
 
     def reset(self):
@@ -253,7 +334,7 @@ class TrainingVecEnv(VecEnv):
         self._start(range(self.num_envs))
         self._reset_seeds()
         self._reset_options()
-        return self.features.value()
+        return self._features()
 
     def step_async(self, actions):
         a = np.asarray(actions, dtype=np.float64).reshape(self.num_envs)
@@ -266,15 +347,24 @@ class TrainingVecEnv(VecEnv):
         cost = np.zeros(self.num_envs)
         act = self._actions.reshape(-1, 1)
         for j in range(k):
+            if self.base is not None:
+                act = apply_residual(self.base.duty, self._actions, task).reshape(-1, 1)
             obs, _, _, trunc, info = self.venv.step(act)
             self.features.update(obs)
+            if self.base is not None:
+                self.base.update(obs)
             cost += tracking_cost(info["reference_deg"] - info["angle_deg"], task)
             if trunc.any() and (j < k - 1 or not trunc.all()):
                 raise RuntimeError("sub-env episodes fell out of step with the decision period")
         dd = self._actions - self._prev
-        rewards = (-(cost / k) - task.w_rate * (0.5 * dd) ** 2).astype(np.float32)
+        if self.base is None:
+            rewards = -(cost / k) - task.w_rate * (0.5 * dd) ** 2
+        else:               # the rate penalty on the residual duty, plus the residual's magnitude penalty
+            rewards = (-(cost / k) - task.w_rate * (0.5 * task.residual_scale * dd) ** 2
+                       - task.w_residual * self._actions ** 2)
+        rewards = rewards.astype(np.float32)
         self._prev = self._actions.copy()
-        feats = self.features.value()
+        feats = self._features()
         dones = np.asarray(trunc, bool).copy()
         infos = [{} for _ in range(self.num_envs)]
         if dones.any():
@@ -283,7 +373,7 @@ class TrainingVecEnv(VecEnv):
                 infos[i]["terminal_observation"] = feats[i].copy()
                 infos[i]["TimeLimit.truncated"] = True
             self._start(rows)
-            feats = self.features.value()
+            feats = self._features()
         return feats, rewards, dones, infos
 
     # -- the rest of the VecEnv API

@@ -3,6 +3,7 @@
 
     python scripts/train_rl.py --env ETB-3B-v0 --timesteps 200000 --out runs/sac_3b            # SAC, 8 sub-envs
     python scripts/train_rl.py --algo ppo --n-envs 16 --randomize --out runs/ppo_3b
+    python scripts/train_rl.py --residual smc --residual-scale 0.3 --randomize --out runs/res_3b   # residual RL
     python scripts/train_rl.py --resume runs/sac_3b                  # continue an interrupted run (Ctrl-C saves)
     python scripts/train_rl.py --resume runs/sac_3b --timesteps 400000        # ... or extend a finished one
     python scripts/benchmark.py --controller rl:runs/sac_3b --controller pid --controller smc
@@ -63,6 +64,12 @@ def parse_args(argv=None):
                    help="VecNormalize observations and rewards (off by default: the features are scaled by design)")
     p.add_argument("--action-repeat", type=int, default=None, help="control periods per policy decision (default 2)")
     p.add_argument("--episode-s", type=float, default=None, help="training episode length in s (default 1.5)")
+    p.add_argument("--residual", default=None, metavar="BASE",
+                   help="residual RL: the policy's action is a bounded correction added to the duty of this classical "
+                        "base controller (pid, pid-plain or smc, designed on the env's nominal model); default: none, "
+                        "the policy outputs the duty")
+    p.add_argument("--residual-scale", type=float, default=None, metavar="DUTY",
+                   help="with --residual: duty = clip(base + SCALE * action, -1, 1), SCALE in (0, 2] (default 0.3)")
     p.add_argument("--hp", type=_hp, action="append", default=[], metavar="KEY=VALUE",
                    help="hyperparameter override (repeatable), e.g. --hp gamma=0.99 --hp net_arch=[256,256]; "
                         f"defaults per algorithm in etb_gym.rl.ALGORITHMS ({', '.join(ALGORITHMS)})")
@@ -93,11 +100,22 @@ def parse_args(argv=None):
         v = getattr(a, name)
         if v is not None and v < 1:
             p.error(f"--{name.replace('_', '-')} {v}: expected an integer >= 1")
+    if a.residual is not None:
+        from etb_gym.rl_task import residual_bases
+
+        if a.residual not in residual_bases():
+            p.error(f"--residual {a.residual!r}: unknown base controller; valid are {', '.join(residual_bases())}")
+    if a.residual_scale is not None:
+        if a.residual is None and not a.resume:
+            p.error("--residual-scale needs --residual BASE")
+        if not (0 < a.residual_scale <= 2):
+            p.error(f"--residual-scale {a.residual_scale}: expected a duty range in (0, 2]")
     if a.eval_freq is not None and a.eval_freq < 0:
         p.error(f"--eval-freq {a.eval_freq}: expected >= 0")
-    if a.resume and (a.hp or a.action_repeat or a.episode_s or a.seed is not None):
-        p.error("--resume continues the saved configuration: --hp, --action-repeat, --episode-s and --seed cannot "
-                "be changed")
+    if a.resume and (a.hp or a.action_repeat or a.episode_s or a.seed is not None or a.residual is not None
+                     or a.residual_scale is not None):
+        p.error("--resume continues the saved configuration: --hp, --action-repeat, --episode-s, --seed, --residual "
+                "and --residual-scale cannot be changed")
     return a
 
 
@@ -130,6 +148,10 @@ def main(argv=None) -> int:
                 task["action_repeat"] = a.action_repeat
             if a.episode_s is not None:
                 task["episode_s"] = a.episode_s
+            if a.residual is not None:
+                task["residual"] = a.residual
+            if a.residual_scale is not None:
+                task["residual_scale"] = a.residual_scale
             cfg.task = task
             train(cfg, a.out, force=a.force, progress=not a.no_progress)
             out = a.out

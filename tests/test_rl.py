@@ -249,3 +249,101 @@ def test_rms_comparison_ratios_and_marks():
     assert "**1/2** runs within 1.2x, **1/2** better than both" in md and "**miss**" in md
     with pytest.raises(ValueError, match="no benchmark rows for controller 'rl:y'"):
         rms_comparison(rows, "rl:y")
+
+
+# ------------------------------------------------------------------------------------------------ residual RL
+@pytest.fixture(scope="module")
+def residual_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rl") / "residual"
+    cfg = small_config(timesteps=256, task={"episode_s": 0.1, "residual": "smc", "residual_scale": 0.3})
+    model = train(cfg, out, progress=False, log=lambda *a: None)
+    return out, model
+
+
+def _drive(ctrl, reference, n=80, base=None):
+    """Duties of ``ctrl`` (and of an independent ``base`` controller fed the same observations)."""
+    env = gym.make("ETB-3B-v0", reference=reference)
+    obs, _ = env.reset(seed=0, options={"angle_deg": reference.get("initial_deg", 40.0)})
+    ctrl.reset(seed=0)
+    if base is not None:
+        base.reset(seed=0)
+    duties, bases = [], []
+    for _ in range(n):
+        d = ctrl.act(obs)
+        duties.append(d)
+        if base is not None:
+            bases.append(base.act(obs))
+        obs, *_ = env.step(np.array([d], np.float32))
+    env.close()
+    return np.array(duties), np.array(bases)
+
+
+def test_residual_smoke_run_records_the_base_controller(residual_run):
+    out, model = residual_run
+    assert model.num_timesteps == 256
+    d = json.loads((out / "config.json").read_text())
+    assert d["task"]["residual"] == "smc" and d["task"]["residual_scale"] == 0.3
+    assert d["features"] == list(FEATURE_NAMES) + ["base_duty"]
+    assert model.observation_space.shape == (len(FEATURE_NAMES) + 1,)
+    env = TrainingVecEnv("ETB-3B-v0", 2, TaskConfig(episode_s=0.01, residual="pid"), seed=0)
+    obs = env.reset()
+    assert obs.shape == (2, len(FEATURE_NAMES) + 1)
+    applied, step = [], env.venv.step
+
+    def record(a):                                        # the duty sent to the plant vs the base's duty
+        applied.append((np.asarray(a, float).ravel().copy(), env.base.duty.copy()))
+        return step(a)
+
+    env.venv.step = record
+    np.testing.assert_array_equal(obs[:, -1], env.base.duty.astype(np.float32))
+    _, rew, _, _ = env.step(np.zeros((2, 1)))             # zero residual: the applied duty is the base duty
+    _, rew2, _, _ = env.step(np.ones((2, 1)))             # full residual: base + 0.3, clipped
+    assert len(applied) == 4 and np.all(rew <= 0) and np.all(rew2 < 0)
+    for a, b in applied[:2]:
+        np.testing.assert_allclose(a, b, atol=1e-7)
+    for a, b in applied[2:]:
+        np.testing.assert_allclose(a, np.minimum(b + 0.3, 1.0), atol=1e-6)
+    env.close()
+
+
+def test_untrained_residual_agent_is_its_base_controller():
+    from etb_gym.rl import make_model, make_training_env
+
+    cfg = small_config(task={"episode_s": 0.1, "residual": "smc"}).validate()
+    env = make_training_env(cfg)
+    ctrl = RLController(model=make_model(cfg, env, None), config=cfg)
+    ref = {"name": "step", "initial_deg": 40.0, "final_deg": 40.5, "at_s": 0.01}
+    duties, bases = _drive(ctrl, ref, base=make_controller("smc"))
+    np.testing.assert_array_equal(duties, bases)          # zeroed output layer: residual exactly 0
+    env.close()
+
+
+def test_residual_round_trip_rebuilds_the_base_controller(residual_run):
+    from etb_gym.controllers.smc import SlidingModeController
+
+    out, model = residual_run
+    ctrl = make_controller(f"rl:{out}")
+    assert isinstance(ctrl.base.ctrls[0], SlidingModeController)
+    ref = {"name": "step", "initial_deg": 40.0, "final_deg": 40.5, "at_s": 0.01}
+    d1, bases = _drive(ctrl, ref, base=make_controller("smc"))
+    d2, _ = _drive(RLController(out / "model.zip"), ref)
+    np.testing.assert_array_equal(d1, d2)
+    assert np.all(np.abs(d1 - bases) <= 0.3 + 1e-9)       # a bounded correction of the base duty
+    assert np.any(d1 != bases)                            # ... that the trained policy does apply
+
+
+def test_residual_bad_input_names_the_option(capsys, tmp_path):
+    with pytest.raises(ValueError, match=r"task.residual = 'lqr' is invalid: .*\['pid', 'pid-plain', 'smc'\]"):
+        TaskConfig(residual="lqr")
+    with pytest.raises(ValueError, match="task.residual_scale = 0 is invalid"):
+        TaskConfig(residual="pid", residual_scale=0)
+    with pytest.raises(SystemExit):
+        train_rl.main(["--residual", "lqr", "--out", str(tmp_path / "r")])
+    assert "--residual 'lqr': unknown base controller; valid are pid, pid-plain, smc" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        train_rl.main(["--residual", "smc", "--residual-scale", "3", "--out", str(tmp_path / "r")])
+    assert "--residual-scale 3.0: expected a duty range in (0, 2]" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        train_rl.main(["--residual-scale", "0.2", "--out", str(tmp_path / "r")])
+    assert "--residual-scale needs --residual BASE" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
