@@ -10,10 +10,12 @@ import numpy as np
 from gymnasium import spaces
 
 from etb_gym.components.sensor import PositionSensor, PositionSensorParams
+from etb_gym.jit import kernel, py_func
 from etb_gym.plant import MODELS, Plant, make_plant
 
 from . import observation as obsmod
-from .references import RANDOM_REFERENCES, PiecewiseLinear, Reference, Steps, as_reference, make_reference
+from .references import (RANDOM_REFERENCES, PiecewiseLinear, Reference, Steps, as_reference, make_random_task,
+                         make_reference)
 
 RAD2DEG = 180.0 / math.pi
 TRACKING_SCALE_DEG = 90.0
@@ -41,6 +43,25 @@ _ROLE_TORQUE_KEYS = {"drive": "torque_electric_Nm", "friction": "torque_friction
                      "spring": "torque_spring_Nm", "stops": "torque_stops_Nm"}
 
 
+@kernel
+def sense(value, gain, offset, noise, resolution):
+    """One sensor reading: ``resolution * round((gain * value + offset + noise) / resolution)`` (resolution 0:
+    not quantized). The PositionSensor equation (etb_gym.components.sensor) in scalar form, for the angle
+    and (gain 1, offset 0) the current; tested equal to PositionSensor.transform."""
+    v = gain * value + offset + noise
+    if resolution > 0.0:
+        v = resolution * round(v / resolution)
+    return v
+
+
+@kernel
+def step_reward(error_deg, duty, last_duty, w_tracking, w_effort, w_chattering):
+    """The reward of one step (see ETBEnv's docstring); the weights come pre-scaled:
+    ``w_tracking / TRACKING_SCALE_DEG`` and ``w_chattering / 4``."""
+    dd = duty - last_duty
+    return -(w_tracking * abs(error_deg) + w_effort * (duty * duty) + w_chattering * (dd * dd))
+
+
 def load_plant_spec(plant) -> Plant:
     """A Plant from a path (.toml/.json plant file), a plant description dict, or a Plant."""
     if isinstance(plant, Plant):
@@ -63,6 +84,11 @@ def _finite_number(where, v, lo=-math.inf, hi=math.inf, expected="a finite numbe
     if not (math.isfinite(f) and lo <= f <= hi):
         raise ValueError(f"{where} = {v!r} is invalid: expected {expected}")
     return f
+
+
+# the single env runs the kernels' plain-Python functions: on scalars they beat a compiled call's dispatch
+_sense, _step_reward = py_func(sense), py_func(step_reward)
+_encode_into, _encode_current_into = py_func(obsmod.encode_into), py_func(obsmod.encode_current_into)
 
 
 class Episode:
@@ -234,11 +260,12 @@ class ETBEnv(gym.Env):
         self.randomization = self._check_randomization(randomize)
         # ---- reference
         self._reference_spec = reference
-        self._fixed_reference = None
         self._table_cache: dict = {}
-        probe = self._build_reference(reference, np.random.default_rng(0))   # validates the spec now
-        if not self._is_random_spec(reference):
-            self._fixed_reference = probe
+        self._fixed_reference = self._random_task = None           # one of them, validated now
+        if self._is_random_spec(reference):
+            self._random_task = self._make_random_task(reference)
+        else:
+            self._fixed_reference = self._build_reference(reference, None)
         # ---- spaces
         self.observe_current, self.full_state = bool(observe_current), bool(full_state)
         self.state_scales = self._state_scales(p)
@@ -329,18 +356,32 @@ class ETBEnv(gym.Env):
             return spec.get("name") in RANDOM_REFERENCES
         return False
 
+    def _spec_dict(self, spec: str | Mapping) -> dict:
+        d = {"name": spec} if isinstance(spec, str) else dict(spec)
+        if d.get("name") in RANDOM_REFERENCES + ("chirp",):
+            d.setdefault("duration_s", self.episode_s)
+        if "name" not in d:
+            as_reference(d)   # raises the helpful error
+        return d
+
+    def _make_random_task(self, spec):
+        d = self._spec_dict(spec)
+        return make_random_task(d.pop("name"), **d)
+
     def _build_reference(self, spec, rng) -> Reference:
         if isinstance(spec, (str, Mapping)):
-            d = {"name": spec} if isinstance(spec, str) else dict(spec)
-            if d.get("name") in RANDOM_REFERENCES + ("chirp",):
-                d.setdefault("duration_s", self.episode_s)
-            if "name" not in d:
-                return as_reference(d)   # raises the helpful error
-            name = d.pop("name")
-            return make_reference(name, rng=rng, **d)
+            d = self._spec_dict(spec)
+            return make_reference(d.pop("name"), rng=rng, **d)
         return as_reference(spec, rng)
 
+    def _check_range(self, ref, vmin, vmax):
+        lo, hi = self._lo_deg - REFERENCE_MARGIN_DEG, self._hi_deg + REFERENCE_MARGIN_DEG
+        if vmin < lo or vmax > hi:
+            raise ValueError(f"reference {ref!r} leaves [{lo:g}, {hi:g}] deg (range {vmin:g}..{vmax:g} "
+                             f"deg): expected set points within the end stops +- {REFERENCE_MARGIN_DEG:g} deg")
+
     def _ref_table(self, ref: Reference) -> np.ndarray:
+        """The reference over the episode's time grid, range-checked; cached per reference object."""
         hit = self._table_cache.get(id(ref))
         if hit is not None and hit[0] is ref:
             return hit[1]
@@ -353,15 +394,18 @@ class ETBEnv(gym.Env):
             vals = tab
             if tab.shape != self._t_grid.shape or not np.all(np.isfinite(tab)):
                 raise ValueError(f"reference {ref!r} gave non-finite or misshaped values over the episode")
-        lo, hi = self._lo_deg - REFERENCE_MARGIN_DEG, self._hi_deg + REFERENCE_MARGIN_DEG
-        vmin, vmax = vals.min(), vals.max()
-        if vmin < lo or vmax > hi:
-            raise ValueError(f"reference {ref!r} leaves [{lo:g}, {hi:g}] deg (range {vmin:g}..{vmax:g} "
-                             f"deg): expected set points within the end stops +- {REFERENCE_MARGIN_DEG:g} deg")
+        self._check_range(ref, vals.min(), vals.max())
         if len(self._table_cache) > 16:
             self._table_cache.clear()
         self._table_cache[id(ref)] = (ref, tab)
         return tab
+
+    def _draw_reference(self, rng):
+        """This episode's reference from the env's random task and its table (no cache: drawn once)."""
+        task = self._random_task
+        ref = task.draw(rng)
+        self._check_range(ref, *task.bounds_deg)
+        return ref, ref.table(self._t_grid)
 
     def _initial_state(self, angle_deg: float) -> np.ndarray:
         x0 = self._x0_cache.get(angle_deg)
@@ -413,12 +457,15 @@ class ETBEnv(gym.Env):
             V = _finite_number("options['supply_V']", opts["supply_V"], 1e-9, math.inf, "a voltage > 0 V")
         P = self.plant.param_vector(overrides) if overrides else self._P_nominal
         spec = opts.get("reference")
-        if spec is None:
-            ref = self._fixed_reference if self._fixed_reference is not None \
-                else self._build_reference(self._reference_spec, rng)
-        else:
+        if spec is not None:
             ref = self._build_reference(spec, rng)
-        return Episode(P, V, self._initial_state(angle), ref, self._ref_table(ref), noise, draws)
+            tab = self._ref_table(ref)
+        elif self._random_task is not None:
+            ref, tab = self._draw_reference(rng)
+        else:
+            ref = self._fixed_reference
+            tab = self._ref_table(ref)
+        return Episode(P, V, self._initial_state(angle), ref, tab, noise, draws)
 
     def _apply_draws(self, draws, overrides):
         p, nom = self.plant, self._nominal
@@ -442,8 +489,7 @@ class ETBEnv(gym.Env):
 
     # ------------------------------------------------------------------------------ sensing
     def _read_angle(self, phi):
-        """Sensed angle [rad]: the PositionSensor equation q * round((gain * phi_delayed + offset + n) / q)
-        (etb_gym.components.sensor; scalar form for speed, tested equal to PositionSensor.transform)."""
+        """Sensed angle [rad] of true angle ``phi`` (delayed, noisy, quantized) and the noise row used."""
         if self._delay:
             buf, j = self._dbuf, self._dpos
             old = buf[j]
@@ -455,16 +501,10 @@ class ETBEnv(gym.Env):
             self._noise = self.np_random.standard_normal((NOISE_BLOCK, 2))
             pos = 0
         self._npos = pos + 1
-        v = self._gain * phi + self._offset + self._noise_std * self._noise.item(pos, 0)
-        q = self._q
-        if q > 0.0:
-            v = q * round(v / q)
-        return v, pos
+        return _sense(phi, self._gain, self._offset, self._noise_std * self._noise.item(pos, 0), self._q), pos
 
     def _read_current(self, i, pos):
-        v = i + self._cur_std * self._noise.item(pos, 1)
-        q = self._cur_q
-        return q * round(v / q) if q > 0.0 else v
+        return _sense(i, 1.0, 0.0, self._cur_std * self._noise.item(pos, 1), self._cur_q)
 
     # ------------------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -496,10 +536,9 @@ class ETBEnv(gym.Env):
         sensed, pos = self._read_angle(phi)
         s_deg = sensed * RAD2DEG
         obs = np.empty(self.n_obs, np.float32)
+        _encode_into(obs, s_deg, r, d)
         if self.observe_current:
-            obsmod.encode_into(obs, s_deg, r, d, self._read_current(i, pos))
-        else:
-            obsmod.encode_into(obs, s_deg, r, d)
+            _encode_current_into(obs, self._read_current(i, pos))
         if self.full_state:
             obs[self.n_obs - x.size:] = x * self._inv_scales
         if self._clip_obs:
@@ -539,9 +578,7 @@ class ETBEnv(gym.Env):
         k += 1
         self._k = k
         r = self._tab.item(k) if k <= self.max_steps else self._ref((k) * dt)
-        e = r - x.item(0) * RAD2DEG
-        dd = d - self._duty
-        reward = -(self._wt * abs(e) + self._we * (d * d) + self._wc * (dd * dd))
+        reward = _step_reward(r - x.item(0) * RAD2DEG, d, self._duty, self._wt, self._we, self._wc)
         self._duty = d
         obs, info = self._observe(x, r, d, k * dt)
         if self._hist is not None:

@@ -11,12 +11,18 @@ Layout of the observation vector (float32, every entry of order one):
     ...    state         full plant state (only with full_state=True), each entry divided by its scale
 
 Controllers decode with :func:`decode`; nothing else about the env is visible to them.
+
+The scaling is written once, in the kernels :func:`encode_into` and :func:`encode_current_into` (compiled
+with numba; the single env and :func:`encode` run their plain-Python ``py_func``, the vector env's compiled
+batch loop calls them per row: the same operations, so the same float32 bits).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+
+from etb_gym.jit import kernel, py_func
 
 ANGLE_CENTER_DEG = 45.0
 ANGLE_SCALE_DEG = 45.0
@@ -37,11 +43,10 @@ class Measurement:
 
 def encode(angle_deg: float, reference_deg: float, last_duty: float, current_A: float | None = None,
            extra: np.ndarray | None = None) -> np.ndarray:
-    vals = [(angle_deg - ANGLE_CENTER_DEG) / ANGLE_SCALE_DEG, (reference_deg - ANGLE_CENTER_DEG) / ANGLE_SCALE_DEG,
-            (reference_deg - angle_deg) / ANGLE_SCALE_DEG, last_duty]
+    out = np.empty(4 if current_A is None else 5, np.float32)
+    py_func(encode_into)(out, angle_deg, reference_deg, last_duty)
     if current_A is not None:
-        vals.append(current_A / CURRENT_SCALE_A)
-    out = np.asarray(vals, dtype=np.float32)
+        py_func(encode_current_into)(out, current_A)
     if extra is not None:
         out = np.concatenate([out, np.asarray(extra, np.float32)])
     return out
@@ -63,14 +68,16 @@ def decode(obs, observe_current: bool | None = None) -> Measurement:
     )
 
 
-def encode_into(out: np.ndarray, angle_deg, reference_deg, last_duty, current_A=None) -> np.ndarray:
-    """The same layout as :func:`encode`, written into ``out`` (shape (n,) for one observation or (N, n) for
-    a batch with array arguments). Used by the envs to avoid per-step temporaries; the entries after the
-    base fields (and the current, if given) are left to the caller."""
-    out[..., 0] = (angle_deg - ANGLE_CENTER_DEG) / ANGLE_SCALE_DEG
-    out[..., 1] = (reference_deg - ANGLE_CENTER_DEG) / ANGLE_SCALE_DEG
-    out[..., 2] = (reference_deg - angle_deg) / ANGLE_SCALE_DEG
-    out[..., 3] = last_duty
-    if current_A is not None:
-        out[..., 4] = current_A / CURRENT_SCALE_A
-    return out
+@kernel
+def encode_into(out, angle_deg, reference_deg, last_duty):
+    """The base fields of one observation, written into ``out[0:4]`` (float32; the rest is the caller's)."""
+    out[0] = (angle_deg - ANGLE_CENTER_DEG) / ANGLE_SCALE_DEG
+    out[1] = (reference_deg - ANGLE_CENTER_DEG) / ANGLE_SCALE_DEG
+    out[2] = (reference_deg - angle_deg) / ANGLE_SCALE_DEG
+    out[3] = last_duty
+
+
+@kernel
+def encode_current_into(out, current_A):
+    """The sensed coil current of one observation, written into ``out[4]``."""
+    out[4] = current_A / CURRENT_SCALE_A

@@ -14,7 +14,8 @@ that :func:`make_reference` turns back into an equal reference::
 Random references (``random_steps``, ``pedal``) are *drawn* when they are made, from the generator passed
 as ``rng`` (the env passes its seeded ``np_random``); what comes back is a deterministic :class:`Steps` or
 :class:`PiecewiseLinear` whose ``to_dict()`` holds the drawn sequence, so an episode's reference can be
-stored and replayed exactly.
+stored and replayed exactly. :func:`make_random_task` validates a random task's parameters once and
+returns an object whose ``draw(rng)`` draws one reference (the env draws one per reset that way).
 
 Names understood by :func:`make_reference` (``REFERENCES``): constant, step, steps, ramp, piecewise_linear,
 sine, chirp, random_steps, pedal. Angles are degrees (0 = closed, 90 = fully open, limp-home 3 deg): the
@@ -27,6 +28,8 @@ import math
 from typing import Callable
 
 import numpy as np
+
+from etb_gym.jit import kernel
 
 LIMP_HOME_DEG = 3.0
 
@@ -159,13 +162,11 @@ class Steps(Reference):
         return self.values_deg[np.maximum(k, 0)]
 
     def table(self, t_grid):
-        # same values as _eval on an increasing grid: plateau j starts at the first t >= times_s[j]
-        start = np.searchsorted(t_grid, self.times_s, side="left")
-        start[0] = 0
-        counts = np.empty_like(start)
-        counts[:-1] = start[1:] - start[:-1]
-        counts[-1] = len(t_grid) - start[-1]
-        return np.repeat(self.values_deg, counts)
+        # the values of _eval on an increasing grid, filled in one pass
+        t = np.asarray(t_grid, dtype=float)
+        out = np.empty(t.shape)
+        fill_steps_table(self.times_s, self.values_deg, t, out)
+        return out
 
     @classmethod
     def _trusted(cls, times_s, values_deg):
@@ -178,6 +179,18 @@ class Steps(Reference):
 
     def to_dict(self):
         return {"name": self.name, "times_s": self.times_s.tolist(), "values_deg": self.values_deg.tolist()}
+
+
+@kernel
+def fill_steps_table(times_s, values_deg, t_grid, out):
+    """out[k] = the value of the last plateau that started at or before t_grid[k] (the first value before
+    times_s[0]), for an increasing t_grid: plateau j fills from the first t >= times_s[j] on."""
+    n = t_grid.shape[0]
+    end = n
+    for j in range(times_s.shape[0] - 1, -1, -1):
+        start = 0 if j == 0 else np.searchsorted(t_grid, times_s[j])
+        out[start:end] = values_deg[j]
+        end = min(end, start)
 
 
 class PiecewiseLinear(Reference):
@@ -275,76 +288,126 @@ def _rng(rng, name):
     return rng
 
 
+class RandomSteps:
+    """The ``random_steps`` task with its parameters validated once; :meth:`draw` draws one :class:`Steps`.
+
+    Random plateaus covering ``duration_s``: dwell times uniform in [min_dwell_s, max_dwell_s]; each new
+    level is, with probability ``small_step_prob``, a small step near limp-home (uniform within
+    +-``small_step_deg`` of 3 deg, so these steps often cross it), otherwise uniform in [low_deg, high_deg]."""
+
+    name = "random_steps"
+
+    def __init__(self, duration_s: float = 3.0, min_dwell_s: float = 0.1, max_dwell_s: float = 0.4,
+                 low_deg: float = 0.5, high_deg: float = 85.0, small_step_prob: float = 0.3,
+                 small_step_deg: float = 4.0):
+        n = "random_steps"
+        self.duration_s = _positive(n, "duration_s", duration_s)
+        self.min_dwell_s = _positive(n, "min_dwell_s", min_dwell_s)
+        self.max_dwell_s = _positive(n, "max_dwell_s", max_dwell_s)
+        if self.max_dwell_s < self.min_dwell_s:
+            raise ValueError(f"random_steps.max_dwell_s = {max_dwell_s!r} is invalid: expected >= min_dwell_s = {min_dwell_s}")
+        self.low_deg, self.high_deg = _finite(n, "low_deg", low_deg), _finite(n, "high_deg", high_deg)
+        if self.high_deg <= self.low_deg:
+            raise ValueError(f"random_steps.high_deg = {high_deg!r} is invalid: expected > low_deg = {low_deg}")
+        self.small_step_prob = _finite(n, "small_step_prob", small_step_prob)
+        if not 0 <= self.small_step_prob <= 1:
+            raise ValueError(f"random_steps.small_step_prob = {small_step_prob!r} is invalid: expected a probability in [0, 1]")
+        self.small_step_deg = _positive(n, "small_step_deg", small_step_deg)
+        self.bounds_deg = (self.low_deg, self.high_deg)          # every drawn level lies within
+        self._n = int(math.ceil(self.duration_s / self.min_dwell_s)) + 1   # enough plateaus in the worst case
+
+    def draw(self, rng: np.random.Generator) -> Steps:
+        u = rng.random(4 * self._n)                         # one draw: dwell, kind, big level, small level
+        times, values = np.empty(self._n), np.empty(self._n)
+        n = draw_plateaus(u, self.duration_s, self.min_dwell_s, self.max_dwell_s - self.min_dwell_s, self.low_deg,
+                          self.high_deg, self.small_step_prob, self.small_step_deg, times, values)
+        return Steps._trusted(times[:n], values[:n])
+
+
+@kernel
+def draw_plateaus(u, duration_s, min_dwell_s, span_dwell_s, low_deg, high_deg, small_step_prob, small_step_deg,
+                  times, values):
+    """The plateaus of :class:`RandomSteps` from uniform draws ``u`` (four per plateau: dwell, kind, big level,
+    small level), written to ``times``/``values``; returns how many cover ``duration_s``."""
+    t = 0.0
+    n = 0
+    for k in range(0, u.shape[0], 4):
+        if t >= duration_s:
+            break
+        if u[k + 1] < small_step_prob:
+            v = min(max(LIMP_HOME_DEG + small_step_deg * (2.0 * u[k + 3] - 1.0), low_deg), high_deg)
+        else:
+            v = low_deg + (high_deg - low_deg) * u[k + 2]
+        times[n] = t
+        values[n] = v
+        n += 1
+        t += min_dwell_s + span_dwell_s * u[k]
+    return n
+
+
 def random_steps(rng: np.random.Generator = None, duration_s: float = 3.0, min_dwell_s: float = 0.1,
                  max_dwell_s: float = 0.4, low_deg: float = 0.5, high_deg: float = 85.0,
                  small_step_prob: float = 0.3, small_step_deg: float = 4.0) -> Steps:
-    """Random plateaus covering ``duration_s``: dwell times uniform in [min_dwell_s, max_dwell_s]; each new
-    level is, with probability ``small_step_prob``, a small step near limp-home (uniform within
-    +-``small_step_deg`` of 3 deg, so these steps often cross it), otherwise uniform in [low_deg, high_deg]."""
+    """Random plateaus covering ``duration_s`` (see :class:`RandomSteps`), drawn from ``rng``."""
     rng = _rng(rng, "random_steps")
-    duration_s = _positive("random_steps", "duration_s", duration_s)
-    lo_dw = _positive("random_steps", "min_dwell_s", min_dwell_s)
-    hi_dw = _positive("random_steps", "max_dwell_s", max_dwell_s)
-    if hi_dw < lo_dw:
-        raise ValueError(f"random_steps.max_dwell_s = {max_dwell_s!r} is invalid: expected >= min_dwell_s = {min_dwell_s}")
-    lo, hi = _finite("random_steps", "low_deg", low_deg), _finite("random_steps", "high_deg", high_deg)
-    if hi <= lo:
-        raise ValueError(f"random_steps.high_deg = {high_deg!r} is invalid: expected > low_deg = {low_deg}")
-    p = _finite("random_steps", "small_step_prob", small_step_prob)
-    if not 0 <= p <= 1:
-        raise ValueError(f"random_steps.small_step_prob = {small_step_prob!r} is invalid: expected a probability in [0, 1]")
-    small = _positive("random_steps", "small_step_deg", small_step_deg)
-    n = int(math.ceil(duration_s / lo_dw)) + 1          # enough plateaus in the worst case
-    u = rng.random(4 * n).tolist()                        # one draw: dwell, kind, big level, small level
-    times, values, t = [], [], 0.0
-    for k in range(0, 4 * n, 4):                          # plain floats: ~13 plateaus, cheaper than numpy
-        if t >= duration_s:
-            break
-        if u[k + 1] < p:
-            v = min(max(LIMP_HOME_DEG + small * (2.0 * u[k + 3] - 1.0), lo), hi)
-        else:
-            v = lo + (hi - lo) * u[k + 2]
-        times.append(t)
-        values.append(v)
-        t += lo_dw + (hi_dw - lo_dw) * u[k]
-    return Steps._trusted(np.array(times), np.array(values))
+    return RandomSteps(duration_s, min_dwell_s, max_dwell_s, low_deg, high_deg, small_step_prob,
+                       small_step_deg).draw(rng)
+
+
+class Pedal:
+    """The ``pedal`` task with its parameters validated once; :meth:`draw` draws one :class:`PiecewiseLinear`.
+
+    A pedal-like driving profile: the driver holds a pedal position for a while (uniform in
+    [min_hold_s, max_hold_s]), then moves to the next one at a finite rate (up to ``max_rate_deg_s``,
+    tip-in and tip-out). Positions mix idle (``idle_deg``, near limp-home), part load (uniform 5..40 deg),
+    and occasional wide-open throttle (``max_deg``)."""
+
+    name = "pedal"
+    PART_LOAD_DEG = (5.0, 40.0)
+
+    def __init__(self, duration_s: float = 3.0, idle_deg: float = 4.0, max_deg: float = 85.0,
+                 min_hold_s: float = 0.15, max_hold_s: float = 0.6, max_rate_deg_s: float = 400.0):
+        self.duration_s = _positive("pedal", "duration_s", duration_s)
+        self.idle_deg = _finite("pedal", "idle_deg", idle_deg)
+        self.max_deg = _finite("pedal", "max_deg", max_deg)
+        self.min_hold_s = _positive("pedal", "min_hold_s", min_hold_s)
+        self.max_hold_s = _positive("pedal", "max_hold_s", max_hold_s)
+        if self.max_hold_s < self.min_hold_s:
+            raise ValueError(f"pedal.max_hold_s = {max_hold_s!r} is invalid: expected >= min_hold_s = {min_hold_s}")
+        self.max_rate_deg_s = _positive("pedal", "max_rate_deg_s", max_rate_deg_s)
+        part_lo, part_hi = self.PART_LOAD_DEG
+        self.bounds_deg = (min(self.idle_deg, part_lo, self.max_deg), max(self.idle_deg, part_hi, self.max_deg))
+        self._n = int(math.ceil(self.duration_s / self.min_hold_s)) + 1
+
+    def draw(self, rng: np.random.Generator) -> PiecewiseLinear:
+        n, rate, idle = self._n, self.max_rate_deg_s, self.idle_deg
+        hold = rng.uniform(self.min_hold_s, self.max_hold_s, n)
+        kind = rng.random(n)
+        part = rng.uniform(*self.PART_LOAD_DEG, n)
+        speed = rng.uniform(0.3, 1.0, n) * rate
+        levels = np.where(kind < 0.3, idle, np.where(kind < 0.85, part, self.max_deg))
+        levels[0] = idle
+        times, values, t = [0.0], [levels[0]], 0.0
+        for k in range(1, n):
+            t += hold[k - 1]
+            times.append(t)
+            values.append(levels[k - 1])
+            t += max(abs(levels[k] - levels[k - 1]) / speed[k], 1e-3)
+            times.append(t)
+            values.append(levels[k])
+            if t >= self.duration_s:
+                break
+        times, values = np.array(times), np.array(values)
+        keep = np.concatenate([[True], np.diff(times) > 0])     # drop the zero-length hold at t = 0
+        return PiecewiseLinear(times[keep], values[keep])
 
 
 def pedal(rng: np.random.Generator = None, duration_s: float = 3.0, idle_deg: float = 4.0,
           max_deg: float = 85.0, min_hold_s: float = 0.15, max_hold_s: float = 0.6,
           max_rate_deg_s: float = 400.0) -> PiecewiseLinear:
-    """A pedal-like driving profile: the driver holds a pedal position for a while (uniform in
-    [min_hold_s, max_hold_s]), then moves to the next one at a finite rate (up to ``max_rate_deg_s``,
-    tip-in and tip-out). Positions mix idle (``idle_deg``, near limp-home), part load (uniform 5..40 deg),
-    and occasional wide-open throttle (``max_deg``)."""
+    """A pedal-like driving profile (see :class:`Pedal`), drawn from ``rng``."""
     rng = _rng(rng, "pedal")
-    duration_s = _positive("pedal", "duration_s", duration_s)
-    idle = _finite("pedal", "idle_deg", idle_deg)
-    top = _finite("pedal", "max_deg", max_deg)
-    lo_h, hi_h = _positive("pedal", "min_hold_s", min_hold_s), _positive("pedal", "max_hold_s", max_hold_s)
-    if hi_h < lo_h:
-        raise ValueError(f"pedal.max_hold_s = {max_hold_s!r} is invalid: expected >= min_hold_s = {min_hold_s}")
-    rate = _positive("pedal", "max_rate_deg_s", max_rate_deg_s)
-    n = int(math.ceil(duration_s / lo_h)) + 1
-    hold = rng.uniform(lo_h, hi_h, n)
-    kind = rng.random(n)
-    part = rng.uniform(5.0, 40.0, n)
-    speed = rng.uniform(0.3, 1.0, n) * rate
-    levels = np.where(kind < 0.3, idle, np.where(kind < 0.85, part, top))
-    levels[0] = idle
-    times, values, t = [0.0], [levels[0]], 0.0
-    for k in range(1, n):
-        t += hold[k - 1]
-        times.append(t)
-        values.append(levels[k - 1])
-        t += max(abs(levels[k] - levels[k - 1]) / speed[k], 1e-3)
-        times.append(t)
-        values.append(levels[k])
-        if t >= duration_s:
-            break
-    times, values = np.array(times), np.array(values)
-    keep = np.concatenate([[True], np.diff(times) > 0])     # drop the zero-length hold at t = 0
-    return PiecewiseLinear(times[keep], values[keep])
+    return Pedal(duration_s, idle_deg, max_deg, min_hold_s, max_hold_s, max_rate_deg_s).draw(rng)
 
 
 REFERENCES: dict[str, Callable] = {
@@ -359,6 +422,7 @@ REFERENCES: dict[str, Callable] = {
     "pedal": pedal,
 }
 RANDOM_REFERENCES = ("random_steps", "pedal")
+RANDOM_TASKS = {"random_steps": RandomSteps, "pedal": Pedal}
 
 
 def _params_of(fn):
@@ -369,19 +433,31 @@ def _params_of(fn):
 _PARAMS = {name: _params_of(fn) for name, fn in REFERENCES.items()}
 
 
-def make_reference(name: str, rng: np.random.Generator | None = None, **params) -> Reference:
-    """Build a reference by name (see ``REFERENCES``) with keyword parameters; the random ones are drawn
-    from ``rng``. Unknown names or parameters raise ValueError listing the valid choices."""
+def _check_params(name, params):
     if name not in REFERENCES:
         raise ValueError(f"unknown reference {name!r}: expected one of {sorted(REFERENCES)}")
-    fn = REFERENCES[name]
     valid = _PARAMS[name]
     unknown = [k for k in params if k not in valid]
     if unknown:
         raise ValueError(f"reference {name!r}: unknown parameter(s) {unknown}; valid: {valid}")
+
+
+def make_reference(name: str, rng: np.random.Generator | None = None, **params) -> Reference:
+    """Build a reference by name (see ``REFERENCES``) with keyword parameters; the random ones are drawn
+    from ``rng``. Unknown names or parameters raise ValueError listing the valid choices."""
+    _check_params(name, params)
     if name in RANDOM_REFERENCES:
-        return fn(rng=rng, **params)
-    return fn(**params)
+        return REFERENCES[name](rng=rng, **params)
+    return REFERENCES[name](**params)
+
+
+def make_random_task(name: str, **params):
+    """A random reference task (``random_steps`` or ``pedal``) with its parameters validated now:
+    ``task.draw(rng)`` draws one reference, ``task.bounds_deg`` bounds every value it can draw."""
+    _check_params(name, params)
+    if name not in RANDOM_TASKS:
+        raise ValueError(f"reference {name!r} is not random: expected one of {list(RANDOM_TASKS)}")
+    return RANDOM_TASKS[name](**params)
 
 
 def as_reference(spec, rng: np.random.Generator | None = None) -> Reference:

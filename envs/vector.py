@@ -8,7 +8,9 @@ It is the same MDP as N :class:`~etb_gym.envs.env.ETBEnv` in a ``SyncVectorEnv``
 bit (tests/test_envs_vector.py): sub-env k owns a generator seeded like ``SyncVectorEnv`` seeds it
 (``seed + k``), draws its episodes with the single env's :meth:`ETBEnv.draw_episode`, and reads its
 sensor from noise blocks drawn in the same order. The plants advance together through
-``Plant.step_batch``; sensing, observation, reward and info are numpy expressions over the batch.
+``Plant.step_batch``; reward, sensing, observation and info of all sub-envs are then one compiled loop
+(:func:`step_rewards`, :func:`observe_rows`) that calls the single env's kernels (``env.step_reward``,
+``env.sense``, ``observation.encode_into``) per sub-env.
 Autoreset is Gymnasium's default ``NEXT_STEP`` mode: the step after a sub-env is truncated resets it
 (its action is ignored, reward 0) and returns the reset observation and info. ``info`` is a dict of arrays
 with ``_key`` masks, as ``SyncVectorEnv`` builds it. Rendering is not supported here (use
@@ -23,18 +25,107 @@ machine of docs/speed.md, N = 1024 stepped 690k plant-steps/s with 2 threads vs 
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from etb_gym.jit import HAVE_NUMBA
+from etb_gym.jit import HAVE_NUMBA, kernel
 
-from . import observation as obsmod
-from .env import NOISE_BLOCK, RAD2DEG, ETBEnv
+from .env import NOISE_BLOCK, RAD2DEG, ETBEnv, sense, step_reward
+from .observation import encode_current_into, encode_into
 
 SERIAL_UP_TO = 4      # up to this many plants: the single env's compiled control step in a loop
 PARALLEL_FROM = 64    # below this many plants one thread is faster than waking numba's thread pool
+INFO_KEYS = ("angle_deg", "sensed_angle_deg", "velocity_deg_s", "current_A", "voltage_V", "duty", "reference_deg",
+             "supply_V")   # then the torques (ETBEnv._torque_index, _effect_torques), then "t_s"
+
+
+# ---------------------------------------------------------------------------------------------- compiled loops
+@kernel
+def clip_duties(actions, ignored, out):
+    """``out`` = the actions clipped to [-1, 1], 0 where ``ignored`` (sub-envs about to be reset). Returns the
+    first sub-env with a non-finite action that is not ignored, or -1."""
+    bad = -1
+    for b in range(out.shape[0]):
+        a = float(actions[b])
+        if ignored[b]:
+            out[b] = 0.0
+        elif math.isfinite(a):
+            out[b] = min(max(a, -1.0), 1.0)
+        else:
+            out[b] = 0.0
+            if bad < 0:
+                bad = b
+    return bad
+
+
+@kernel
+def step_rewards(duty, last_duty, X, K, ref_table, max_steps, weights, reward, truncated):
+    """After the plants stepped: count the step (K), reward and truncation of every sub-env; ``last_duty``
+    becomes ``duty``. ``weights`` = (w_tracking / 90, w_effort, w_chattering / 4), as ETBEnv scales them."""
+    for b in range(K.shape[0]):
+        k = K[b] + 1
+        K[b] = k
+        r = ref_table[b, min(k, max_steps)]
+        reward[b] = step_reward(r - X[b, 0] * RAD2DEG, duty[b], last_duty[b], weights[0], weights[1], weights[2])
+        last_duty[b] = duty[b]
+        truncated[b] = k >= max_steps
+
+
+@kernel
+def observe_rows(rows, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps, delay_buf, delay_pos, noise,
+                 noise_pos, noise_std, sensor, observe_current, state_scale, clip, obs_low, obs_high, info_cols,
+                 obs, info):
+    """Sensing, observation and info of sub-envs ``rows``: the single env's ``_observe`` per row, written to
+    ``obs[j]`` and ``info[:, j]`` for ``b = rows[j]``. ``sensor`` = (gain, offset, resolution, current noise std,
+    current resolution); ``state_scale`` is empty unless the full state is observed; ``info_cols``: the AUX
+    column of each torque key (-1: no such component, 0). Returns how many of the rows used up their noise
+    block (the caller draws the next block before their next reading, as the single env does)."""
+    used_up = 0
+    n_delay = delay_buf.shape[1]
+    n_obs = obs.shape[1]
+    n_x = state_scale.shape[0]
+    n_info = info.shape[0]
+    for j in range(rows.shape[0]):
+        b = rows[j]
+        phi = X[b, 0]
+        phi_read = phi
+        if n_delay > 1:
+            p = delay_pos[b]
+            phi_read = delay_buf[b, p]
+            delay_buf[b, p] = phi
+            delay_pos[b] = (p + 1) % n_delay
+        pos = min(noise_pos[b], NOISE_BLOCK - 1)    # past the end only in rows about to be reset (outputs replaced)
+        noise_pos[b] = pos + 1
+        if pos + 1 == NOISE_BLOCK:
+            used_up += 1
+        s_deg = sense(phi_read, sensor[0], sensor[1], noise_std[b] * noise[b, pos, 0], sensor[2]) * RAD2DEG
+        r = ref_table[b, min(K[b], max_steps)]
+        d = last_duty[b]
+        o = obs[j]
+        encode_into(o, s_deg, r, d)
+        if observe_current:
+            encode_current_into(o, sense(X[b, 2], 1.0, 0.0, sensor[3] * noise[b, pos, 1], sensor[4]))
+        for m in range(n_x):
+            o[n_obs - n_x + m] = X[b, m] * state_scale[m]
+        if clip:
+            for m in range(n_obs):
+                o[m] = max(min(o[m], obs_high[m]), obs_low[m])
+        info[0, j] = phi * RAD2DEG
+        info[1, j] = s_deg
+        info[2, j] = X[b, 1] * RAD2DEG
+        info[3, j] = X[b, 2]
+        info[4, j] = d * supply_V[b]
+        info[5, j] = d
+        info[6, j] = r
+        info[7, j] = supply_V[b]
+        for c in range(info_cols.shape[0]):
+            info[8 + c, j] = AUX[b, info_cols[c]] if info_cols[c] >= 0 else 0.0
+        info[n_info - 1, j] = K[b] * dt
+    return used_up
 
 
 def _max_threads() -> int:
@@ -93,23 +184,34 @@ class ETBVectorEnv(VectorEnv):
         self.action_space = batch_space(env.action_space, N)
         p = env.plant
         self.plant = p
+        # per sub-env state (row b = sub-env b)
         self._rngs: list = [None] * N
+        self._episodes: list = [None] * N
         self._X = np.zeros((N, p.n_states))
         self._AUX = np.zeros((N, len(p.components)))
         self._P = np.tile(env._P_nominal, (N, 1))
         self._V = np.full(N, env.supply_V)
         self._K = np.zeros(N, np.int64)
-        self._duty = np.zeros(N)
+        self._t0 = np.zeros(N)
+        self._d = np.zeros(N)                   # this step's applied duty
+        self._duty = np.zeros(N)                # the previous step's
         self._tab = np.zeros((N, env.max_steps + 1))
         self._noise = np.zeros((N, NOISE_BLOCK, 2))
         self._npos = np.zeros(N, np.int64)
         self._noise_std = np.zeros(N)
         self._dbuf = np.zeros((N, env._delay + 1))
         self._dpos = np.zeros(N, np.int64)
-        self._episodes: list = [None] * N
         self._autoreset = np.zeros(N, bool)
+        self._refill_pending = False
         self._rows = np.arange(N)
         self._dx = np.empty(p.n_states)
+        # constants of the compiled loops
+        self._weights = np.array([env._wt, env._we, env._wc])
+        self._sensor = np.array([env._gain, env._offset, env._q, env._cur_std, env._cur_q])
+        self._state_scale = env._inv_scales if env.full_state else np.zeros(0)
+        torques = env._torque_index + env._effect_torques
+        self._info_cols = np.array([k for _, k in torques], np.int64)
+        self._info_keys = tuple((key, "_" + key) for key in INFO_KEYS + tuple(key for key, _ in torques) + ("t_s",))
         self._started = False
         self._threads = _Threads(self.num_threads)
 
@@ -132,75 +234,52 @@ class ETBVectorEnv(VectorEnv):
             env._rhs(0.0, self._X[i], 0.0, self._P[i], self._dx, self._AUX[i])
             self._dbuf[i] = self._X[i, 0]
             self._dpos[i] = 0
-            self._noise[i] = rng.standard_normal((NOISE_BLOCK, 2))
+            rng.standard_normal(out=self._noise[i])
             self._npos[i] = 0
             self._autoreset[i] = False
-        rows = np.asarray(rows, np.int64)
-        return self._observe(rows, self._tab[rows, 0], np.zeros(rows.size), np.zeros(rows.size))
+        return self._observe(np.asarray(rows, np.int64))
+
+    def _refill_noise(self):
+        """Draw the next noise block of every live sub-env that used up its block (lazily, as the single env)."""
+        for b in np.flatnonzero((self._npos == NOISE_BLOCK) & ~self._autoreset):
+            self._rngs[b].standard_normal(out=self._noise[b])
+            self._npos[b] = 0
+        self._refill_pending = False
 
     # ------------------------------------------------------------------------------ sensing and outputs
-    def _observe(self, rows, r, d, t):
-        """Observation and info arrays for ``rows`` (an index array, or ``slice(None)`` for all sub-envs):
-        the single env's ``_observe`` over a batch."""
+    def _observe(self, rows):
+        """Observations (n, n_obs) and info matrix (n_info, n) of sub-envs ``rows`` (int64 index array)."""
         env = self.env
-        ri = self._rows if isinstance(rows, slice) else rows
-        X = self._X[rows]
-        phi = X[:, 0]
-        if env._delay:
-            pos = self._dpos[rows]
-            old = self._dbuf[ri, pos]
-            self._dbuf[ri, pos] = phi
-            self._dpos[rows] = (pos + 1) % self._dbuf.shape[1]
-            phi_read = old
-        else:
-            phi_read = phi
-        npos = self._npos[rows]
-        full = npos == NOISE_BLOCK
-        if full.any():
-            for j in np.flatnonzero(full):
-                i = ri[j]
-                if not self._autoreset[i]:       # a row about to be reset draws its noise at the reset
-                    self._noise[i] = self._rngs[i].standard_normal((NOISE_BLOCK, 2))
-                    npos[j] = 0
-            npos = np.minimum(npos, NOISE_BLOCK - 1)
-        z = self._noise[ri, npos]
-        self._npos[rows] = npos + 1
-        sensed = env.sensor.transform(phi_read, self._noise_std[rows] * z[:, 0])
-        s_deg = sensed * RAD2DEG
-        n = len(ri)
-        obs = np.empty((n, env.n_obs), np.float32)
-        if env.observe_current:
-            i_read = X[:, 2] + env._cur_std * z[:, 1]
-            if env._cur_q > 0.0:
-                i_read = env._cur_q * np.round(i_read / env._cur_q)
-            obsmod.encode_into(obs, s_deg, r, d, i_read)
-        else:
-            obsmod.encode_into(obs, s_deg, r, d)
-        if env.full_state:
-            obs[:, env.n_obs - X.shape[1]:] = X * env._inv_scales
-        if env._clip_obs:
-            np.minimum(obs, env._obs_high, out=obs)
-            np.maximum(obs, env._obs_low, out=obs)
-        V = self._V[rows]
-        AUX = self._AUX[rows]
-        info = {"angle_deg": phi * RAD2DEG, "sensed_angle_deg": s_deg, "velocity_deg_s": X[:, 1] * RAD2DEG,
-                "current_A": X[:, 2].copy(), "voltage_V": d * V, "duty": np.array(d, float), "reference_deg": r,
-                "supply_V": V}
-        for key, k in env._torque_index:
-            info[key] = AUX[:, k].copy() if k >= 0 else np.zeros(n)
-        for key, k in env._effect_torques:
-            info[key] = AUX[:, k].copy()
-        info["t_s"] = np.array(t, float)
+        obs = np.empty((rows.size, env.n_obs), np.float32)
+        info = np.empty((len(self._info_keys), rows.size))
+        used_up = observe_rows(rows, self._X, self._AUX, self._duty, self._V, self._K, env.dt, self._tab,
+                               env.max_steps, self._dbuf, self._dpos, self._noise, self._npos, self._noise_std,
+                               self._sensor, env.observe_current, self._state_scale, env._clip_obs, env._obs_low,
+                               env._obs_high, self._info_cols, obs, info)
+        self._refill_pending |= used_up > 0
         return obs, info
 
-    def _with_masks(self, info):
-        """Add SyncVectorEnv's ``_key`` masks (all True: every sub-env reports every key; one shared array)."""
+    def _info_dict(self, info, mask):
+        """SyncVectorEnv's info layout: each key's array (a row of the info matrix) and its ``_key`` mask."""
         out = {}
-        every = np.ones(self.num_envs, bool)
-        for k, v in info.items():
-            out[k] = v
-            out["_" + k] = every
+        for (key, mkey), values in zip(self._info_keys, info):
+            out[key] = values
+            out[mkey] = mask
         return out
+
+    def _step_plants(self, d):
+        env, N = self.env, self.num_envs
+        t0 = np.multiply(self._K, env.dt, out=self._t0)
+        if N <= SERIAL_UP_TO:     # a parallel region costs more than a few plants
+            ok = np.empty(N, bool)
+            cs, X, V, P, A = env._control_step, self._X, self._V, self._P, self._AUX
+            for i in range(N):
+                ok[i] = cs(X[i], d[i], V[i], P[i], t0[i], env.dt, env._nsub, env._sw, env._fpwm, A[i])
+            return ok
+        if self.num_threads == 1:
+            return self.plant.step_batch(self._X, d, self._V, self._P, t0, self._AUX, parallel=False)
+        with self._threads:
+            return self.plant.step_batch(self._X, d, self._V, self._P, t0, self._AUX)
 
     # ------------------------------------------------------------------------------ VectorEnv API
     def reset(self, *, seed=None, options=None):
@@ -228,16 +307,11 @@ class ETBVectorEnv(VectorEnv):
         self._started = True
         if mask is None:
             self._obs = obs_r
-            return obs_r.copy(), self._with_masks(info_r)
+            return obs_r.copy(), self._info_dict(info_r, np.ones(N, bool))
         self._obs[rows] = obs_r
-        infos = {}
-        for k, v in info_r.items():
-            a = np.zeros(N, v.dtype)
-            a[rows] = v
-            m = np.zeros(N, bool)
-            m[rows] = True
-            infos[k], infos["_" + k] = a, m
-        return self._obs.copy(), infos
+        info = np.zeros((len(self._info_keys), N))
+        info[:, rows] = info_r
+        return self._obs.copy(), self._info_dict(info, mask.copy())
 
     def step(self, actions):
         if not self._started:
@@ -245,56 +319,39 @@ class ETBVectorEnv(VectorEnv):
 
             raise ResetNeeded("call reset() before step()")
         env, N = self.env, self.num_envs
-        a = np.asarray(actions, dtype=float)
+        a = np.asarray(actions)
+        if a.dtype.kind != "f":
+            a = a.astype(float)
         if a.size != N:
             raise ValueError(f"actions have shape {a.shape}: expected ({N}, 1), one duty cycle per sub-env")
         a = a.reshape(N)
-        resetting = self._autoreset.any()
+        d = self._d
+        bad = clip_duties(a, self._autoreset, d)
+        if bad >= 0:
+            raise ValueError(f"actions[{bad}] = {a[bad]!r}: expected a finite duty cycle in [-1, 1]")
+        ok = self._step_plants(d)
         live = ~self._autoreset
-        if not np.isfinite(a).all():
-            bad = ~np.isfinite(a) & live
-            if bad.any():
-                k = int(np.argmax(bad))
-                raise ValueError(f"actions[{k}] = {a[k]!r}: expected a finite duty cycle in [-1, 1]")
-        d = np.minimum(np.maximum(a, -1.0), 1.0)        # np.clip, without its Python wrapper
-        if resetting:
-            d[~live] = 0.0
-        dt = env.dt
-        t0 = self._K * dt
-        if self.num_envs <= SERIAL_UP_TO:     # a parallel region costs more than a few plants
-            ok = np.empty(self.num_envs, bool)
-            cs, X, V, P, A = env._control_step, self._X, self._V, self._P, self._AUX
-            for i in range(self.num_envs):
-                ok[i] = cs(X[i], d[i], V[i], P[i], t0[i], dt, env._nsub, env._sw, env._fpwm, A[i])
-        elif self.num_threads == 1:
-            ok = self.plant.step_batch(self._X, d, self._V, self._P, t0, self._AUX, parallel=False)
-        else:
-            with self._threads:
-                ok = self.plant.step_batch(self._X, d, self._V, self._P, t0, self._AUX)
         if not ok.all() and not ok[live].all():
             k = int(np.argmax(~ok & live))
             raise FloatingPointError(f"sub-env {k}: ETB plant state became non-finite at t = "
-                                     f"{(self._K[k] + 1) * dt:.6f} s: {dict(zip(self.plant.state_names, self._X[k]))}")
-        K = self._K
-        K += 1
-        r = self._tab[self._rows, np.minimum(K, env.max_steps)]   # (rows past the end are reset below)
-        e = r - self._X[:, 0] * RAD2DEG
-        dd = d - self._duty
-        reward = -(env._wt * np.abs(e) + env._we * (d * d) + env._wc * (dd * dd))
-        self._duty = d
-        obs, info = self._observe(slice(None), r, d, K * dt)
-        trunc = K >= env.max_steps
-        resets = np.flatnonzero(~live) if resetting else ()
-        if resetting:
+                                     f"{(self._K[k] + 1) * env.dt:.6f} s: "
+                                     f"{dict(zip(self.plant.state_names, self._X[k]))}")
+        reward = np.empty(N)
+        trunc = np.empty(N, bool)
+        step_rewards(d, self._duty, self._X, self._K, self._tab, env.max_steps, self._weights, reward, trunc)
+        if self._refill_pending:
+            self._refill_noise()
+        obs, info = self._observe(self._rows)
+        if not live.all():
+            resets = np.flatnonzero(~live)
             obs_r, info_r = self._reset_rows(resets, [None] * resets.size, None)
             obs[resets] = obs_r
+            info[:, resets] = info_r
             reward[resets] = 0.0
             trunc[resets] = False
-            for k, v in info_r.items():
-                info[k][resets] = v
         self._autoreset = trunc.copy()
         self._obs = obs
-        return obs.copy(), reward, np.zeros(N, bool), trunc, self._with_masks(info)
+        return obs.copy(), reward, np.zeros(N, bool), trunc, self._info_dict(info, np.ones(N, bool))
 
     @property
     def episodes(self) -> list:
