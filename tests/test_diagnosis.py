@@ -73,3 +73,31 @@ def test_cli_rejects_bad_recording_with_a_message(tmp_path, capsys):
 def test_diagnose_validates_options():
     with pytest.raises(ValueError, match="unknown candidate"):
         diagnose([], candidates=("warp_drive",))
+
+
+def test_closed_loop_recording_is_the_reference_pid_on_the_sensor_readings():
+    """Closed-loop rig data: the package's PID positions the truth from its own noisy, quantized readings,
+    tracks the reference, and the recorded voltage is what it commanded (input depends on the output)."""
+    truth = make_plant("3B", substeps=40)
+    rec = make_recording(truth, np.random.default_rng(4), duration_s=3.0, closed=True, noise_deg=0.01)
+    assert rec.n == 3000 and np.all(np.isfinite(rec.angle_deg))
+    q = 90.0 / 4096
+    assert np.allclose(rec.angle_deg / q, np.round(rec.angle_deg / q), atol=1e-6)      # 12-bit readings
+    assert np.max(np.abs(rec.voltage_V)) <= truth.supply.voltage_V + 1e-9
+    assert np.ptp(rec.angle_deg) > 20.0                     # it moved between reference levels ...
+    fast = np.abs(np.diff(rec.angle_deg)) > 0.5             # ... and holds in between (no hunting limit cycle:
+    assert fast.mean() < 0.05                                #     moving faster than 500 deg/s < 5 % of the time)
+
+
+def test_integrator_step_is_chosen_below_the_noise_floor():
+    """The diagnosis refines its integrator step until its own error is below half the noise floor: finer
+    for a quiet sensor than for a noisy one."""
+    from etb_gym.diagnose.model import prepare
+    from etb_gym.diagnose.run import choose_substeps
+
+    truth = make_plant("3B", substeps=80)
+    steps = []
+    for noise in (0.003, 0.1):
+        rec = make_recording(truth, np.random.default_rng(5), duration_s=3.0, noise_deg=noise, resolution_deg=0.0)
+        steps.append(choose_substeps(make_plant("3B"), prepare([rec], 12.0)))
+    assert steps[0] > steps[1] and steps[1] >= 20

@@ -3,7 +3,9 @@
 One round:
   1. screen   every remaining candidate is added and all parameters (nominal + effects) refitted from the
               current estimate (a bounded number of evaluations); dBIC = m_eff ln(RSS_c/RSS) + dp ln(m_eff)
-              with m_eff = m / tau_int of the candidate's residual
+              with m_eff = m / tau_int of the candidate's residual. Screening is a ranking, so it runs at the
+              coarser integrator step SCREEN_SUBSTEPS (the current model is refitted there too, for a fair
+              RSS); validation and the accepted fit run at the diagnosis's own step
   2. validate the TOP_K candidates with dBIC < -BIC_MIN are cross-validated over two folds of alternating
               time blocks (fit on one, score the other); the current model is cross-validated the same way
   3. accept   the candidate with the lowest held-out error, if it beats the current model's held-out error
@@ -29,6 +31,7 @@ BIC_MIN = 10.0
 CV_MIN_GAIN = 0.10
 TOP_K = 3
 SCREEN_NFEV = 12
+SCREEN_SUBSTEPS = 20
 FULL_NFEV = 40
 
 _CTX: dict = {}
@@ -107,18 +110,20 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         remaining = [c for c in candidate_ids if c not in active and CANDIDATES[c].fit]
         if not remaining:
             break
-        tasks = []
+        screen_dict = dict(base_dict, substeps=min(SCREEN_SUBSTEPS, base.substeps))
+        tasks = [("fit", screen_dict, nominal, active, cur.x, SCREEN_NFEV)]
         for c in remaining:
             spec = cur.spec.with_candidate(CANDIDATES[c])
-            tasks.append(("fit", base_dict, nominal, active + (c,), extend(cur.x, spec), SCREEN_NFEV))
+            tasks.append(("fit", screen_dict, nominal, active + (c,), extend(cur.x, spec), SCREEN_NFEV))
         if progress is not None:
-            progress.set_description(f"round {rnd + 1}: screening {len(tasks)} candidates")
+            progress.set_description(f"round {rnd + 1}: screening {len(tasks) - 1} candidates")
         res = runner.map(tasks, progress)
+        ref = F.FitResult(cur.spec, *res[0])
         screened = []
-        for c, (x, rss, m, jac, nfev, tau) in zip(remaining, res):
+        for c, (x, rss, m, jac, nfev, tau) in zip(remaining, res[1:]):
             spec = cur.spec.with_candidate(CANDIDATES[c])
             fr = F.FitResult(spec, x, rss, m, jac, nfev, tau)
-            screened.append((dbic(fr, cur), c, fr))
+            screened.append((dbic(fr, ref), c, fr))
         screened.sort(key=lambda s: s[0])
         log("  screening: " + ", ".join(f"{c} dBIC {d:+.0f}" for d, c, _ in screened[:5]))
         top = [s for s in screened[:TOP_K] if s[0] < -BIC_MIN]

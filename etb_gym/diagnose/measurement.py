@@ -9,7 +9,7 @@ g gain, y_0 offset [deg], tau delay [s] (fractional: linear interpolation betwee
 the recorded values (``detect_resolution``), since rounding has no useful derivative.
 
 Noise floor: while friction holds the plate still the true angle is constant, so the spread of the
-reading about its mean inside such *rest runs* is the sensor noise, coloured or not, plus quantization.
+reading about a cubic trend (presliding creep) inside such *rest runs* is the sensor noise, coloured or not, plus quantization.
 Without rest runs it falls back to the second-difference estimate sigma^2 = E[(y[k+1] - 2y[k] + y[k-1])^2]/6.
 """
 from __future__ import annotations
@@ -22,6 +22,7 @@ import numpy as np
 from ..components.sensor import PositionSensor, PositionSensorParams
 
 DEFAULT_RESOLUTION_DEG = 90.0 / 4096      # PositionSensorParams default: 12 bits over 90 deg
+REST_TREND_DEGREE = 3                     # polynomial removed from each rest run before its spread is taken
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,8 +121,8 @@ def noise_floor(t_s: np.ndarray, y_deg: np.ndarray, resolution_deg: float) -> tu
         for a, b in runs:
             seg = y_deg[a:b]
             k = np.arange(b - a)
-            coef = np.polyfit(k, seg, 1)                    # presliding creep removed
-            v.append(float(np.sum((seg - np.polyval(coef, k)) ** 2)) / max(b - a - 2, 1))
+            coef = np.polyfit(k, seg, REST_TREND_DEGREE)    # presliding creep (not a straight line) removed
+            v.append(float(np.sum((seg - np.polyval(coef, k)) ** 2)) / max(b - a - REST_TREND_DEGREE - 1, 1))
         s = math.sqrt(float(np.median(v)))                  # runs with hidden slow motion do not count
     else:
         s = s_d2

@@ -146,6 +146,7 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
         "regimes_before": before,
         "regimes_after": after,
         "tests": tests,
+        "integrator_substeps": int(plant.substeps),
         "elapsed_s": elapsed,
     }
     return Result(report, data, nominal, final, res0, res1, tab0, tab1, plant, sensor, elapsed)

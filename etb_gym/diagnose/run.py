@@ -36,6 +36,7 @@ class Options:
     jobs: int = 2
     sensor_resolution_deg: float = DEFAULT_RESOLUTION_DEG
     current_weight: float = 0.3
+    substeps: int | None = None                # integrator substeps per sample; None: chosen (choose_substeps)
     progress: bool = True
     verbose: bool = True
 
@@ -81,6 +82,29 @@ def numerical_tolerance(spec: Spec, x, data: Data) -> None:
         rd.tol_deg = np.where(np.isfinite(d), d, 0.0)
 
 
+SUBSTEP_CHOICES = (20, 40, 80, 160)
+SUBSTEP_TOL = 0.5    # the model's own integration error must stay below this fraction of the noise floor
+
+
+def choose_substeps(base: Plant, data: Data, choices=SUBSTEP_CHOICES, frac: float = SUBSTEP_TOL) -> int:
+    """The coarsest integrator step whose own error is well below the noise. The fixed-rate stepper is first
+    order, so the error at n substeps is about twice the RMS difference between n and 2n; the first n of
+    ``choices`` with 2 RMS(y_n - y_2n) < ``frac`` x the noise floor on the recorded input is taken. (A model
+    fitted at too coarse a step has an integration error that looks like missing physics: false alarms.)"""
+    spec = Spec(base)
+    plant, sensor = spec.build(spec.x0())
+    for n in choices[:-1]:
+        a = simulate(plant.replace(substeps=n), sensor, data)
+        b = simulate(plant.replace(substeps=2 * n), sensor, data)
+        if a is None or b is None:
+            continue
+        d = np.concatenate([pa[0] - pb[0] for pa, pb in zip(a, b)])
+        d = d[np.isfinite(d)]
+        if d.size and 2.0 * math.sqrt(float(np.mean(d ** 2))) < frac * data.noise_deg:
+            return n
+    return choices[-1]
+
+
 def _rms(res: list) -> float:
     return float(math.sqrt(np.mean(np.concatenate(res) ** 2)))
 
@@ -109,11 +133,17 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
     if abs(base.control_period_s - dt) > 1e-6 * dt:
         base = base.replace(control_period_s=dt)
     data = prepare(recs, base.supply.voltage_V, current_weight=opts.current_weight)
+    if opts.substeps is not None:
+        if not (isinstance(opts.substeps, (int, np.integer)) and opts.substeps >= 1):
+            raise ValueError(f"substeps = {opts.substeps!r}: expected a positive integer or None (chosen)")
+        base = base.replace(substeps=int(opts.substeps))
+    else:
+        base = base.replace(substeps=choose_substeps(base, data))
     log(f"etb-gym diagnose: {len(recs)} recording(s), {sum(r.n for r in recs)} samples at {1 / dt:.0f} Hz, "
-        f"model {base.model or 'custom'}; noise floor {data.noise_deg:.4f} deg")
+        f"model {base.model or 'custom'}; noise floor {data.noise_deg:.4f} deg; {base.substeps} substeps per sample")
 
     n_fit = len([c for c in opts.candidates if CANDIDATES[c].fit])
-    bar = tqdm(total=1 + opts.max_effects * (n_fit + 4), disable=not opts.progress, unit="fit", leave=False)
+    bar = tqdm(total=1 + opts.max_effects * (n_fit + 5), disable=not opts.progress, unit="fit", leave=False)
     runner = Runner(data, opts.jobs)
     try:
         bar.set_description("calibrating the nominal model")

@@ -1,9 +1,10 @@
 """Rig-like recordings from a known ("truth") plant: the proof of the diagnosis and its tests use these.
 
 Excitation (duty at the control period): steps, ramps, a push to the open stop and a release from full
-open, a push into the closed stop, and a PRBS-like random duty. Closed loop: a PI position controller
-with anti-windup and friction feed-forward tracking steps and ramps of the reference; the recorded
-voltage is what the controller commanded (so input and output are correlated, as on a real rig).
+open, a push into the closed stop, and a PRBS-like random duty. Closed loop: the package's reference PID
+(limp-home and friction compensation, designed on the nominal plant, not on the truth) tracks steps and
+ramps of the reference from the sensor's readings; the recorded voltage is what it commanded (so input and
+output are correlated, as on a real rig).
 
 The reading goes through ``PositionSensor`` (noise, quantization, offset/gain, whole-sample delay), and
 optionally coloured noise: AR(1) noise n[k] = a n[k-1] + e[k] scaled to the requested standard deviation.
@@ -68,50 +69,43 @@ def reference_profile(duration_s: float, rng: np.random.Generator, dt: float = 1
     return np.concatenate(r)[:n]
 
 
-def closed_loop(plant: Plant, ref_deg: np.ndarray, kp: float = 0.08, ki: float = 1.5, kff: float = 0.35,
-                supply_V: float | None = None, enable_k: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """PI (+ spring/friction feed-forward by sign of the error) position control around the true angle.
-    Returns (duty per period, true states per sample)."""
-    V = plant.supply.voltage_V if supply_V is None else supply_V
+def closed_loop(plant: Plant, ref_deg: np.ndarray, read, controller=None, enable_k: int = 0):
+    """The reference PID (``etb_gym.controllers.PIDController``, designed on the nominal 3B plant, with
+    limp-home and friction compensation) positions the truth plant, seeing only the sensor's readings.
+    ``read(k, phi_rad) -> deg`` is the sensor reading of sample k. Returns (duty per period, true states per
+    sample, readings per sample)."""
+    from etb_gym.controllers.pid import PIDController
+    from etb_gym.envs.observation import encode
+
+    ctrl = controller if controller is not None else PIDController(dt=plant.control_period_s)
+    ctrl.reset()
+    V = plant.supply.voltage_V
     x = plant.initial_state(math.radians(float(ref_deg[0])) if 0.5 < ref_deg[0] < 89.5 else None)
     n = ref_deg.size
     X = np.empty((n, plant.n_states))
-    duty = np.empty(n)
-    integ = 0.0
+    Y = np.empty(n)
+    duty = np.zeros(n)
     aux = np.zeros(len(plant.components))
-    lh = math.degrees(plant.limp_home_rad)
+    last = 0.0
     for k in range(n):
         X[k] = x
-        e = ref_deg[k] - math.degrees(x[0])
-        ff = kff * (0.35 + 0.5 * (ref_deg[k] - lh) / 90.0) if ref_deg[k] > lh else -0.1
-        u = ff + kp * e + integ if k >= enable_k else 0.0
-        d = min(1.0, max(-1.0, u))
-        if d == u and k >= enable_k:
-            integ += ki * e * plant.control_period_s
-        duty[k] = d
-        plant.step(x, d, supply_V=V, t0=k * plant.control_period_s, aux=aux)
-    return duty, X
+        Y[k] = read(k, float(x[0]))
+        if k >= enable_k:
+            last = float(np.clip(ctrl.act(encode(Y[k], float(ref_deg[k]), last)), -1.0, 1.0))
+        duty[k] = last
+        plant.step(x, last, supply_V=V, t0=k * plant.control_period_s, aux=aux)
+    return duty, X, Y
 
 
 def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float = 10.0, closed: bool = False,
                    noise_deg: float = 0.01, resolution_deg: float = 90.0 / 4096, colour: float = 0.0,
                    offset_deg: float = 0.0, gain: float = 1.0, delay_steps: int = 0,
                    current_noise_A: float = 0.01, with_current: bool = True, name: str = "rec.csv") -> Recording:
-    """One rig-like recording of ``plant`` (the truth). ``colour`` in [0, 1): AR(1) coefficient of the noise."""
+    """One rig-like recording of ``plant`` (the truth). ``colour`` in [0, 1): AR(1) coefficient of the noise.
+    Closed loop: the reference PID acts on these same readings (noise, quantization, offset/gain, delay)."""
     dt = plant.control_period_s
-    quiet = np.zeros(int(round(QUIET_S / dt)))       # the rig idles (duty 0) before the run starts
-    if closed:
-        ref = reference_profile(duration_s - QUIET_S, rng, dt)
-        lh = math.degrees(plant.limp_home_rad)
-        duty, X = closed_loop(plant, np.concatenate([np.full(quiet.size, lh), ref]), enable_k=quiet.size)
-        ang = X[:, 0]
-        cur = X[:, 2]
-    else:
-        duty = np.concatenate([quiet, open_loop_duty(duration_s - QUIET_S, rng, dt)])
-        tr = plant.simulate(duty=duty[:-1], angle_deg=math.degrees(plant.limp_home_rad))
-        ang = tr.angle_rad
-        cur = tr.current_A
-    n = duty.size
+    nq = int(round(QUIET_S / dt))                    # the rig idles (duty 0) before the run starts
+    n = nq + int(round((duration_s - QUIET_S) / dt))
     sensor = PositionSensor(PositionSensorParams(noise_std_rad=0.0, resolution_rad=math.radians(resolution_deg),
                                                  offset_rad=math.radians(offset_deg), gain=gain,
                                                  delay_steps=int(delay_steps), current_noise_std_A=current_noise_A))
@@ -119,8 +113,22 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
     if colour > 0:
         from scipy.signal import lfilter
         e = lfilter([1.0], [1.0, -colour], e) * math.sqrt(1 - colour ** 2)
-    noise = math.radians(noise_deg) * e
-    y = np.degrees(sensor.measure(ang + noise / gain, rng))
+    noise = math.radians(noise_deg) * e / gain
+    if closed:
+        ref = reference_profile(duration_s - QUIET_S, rng, dt)[: n - nq]
+        lh = math.degrees(plant.limp_home_rad)
+        sensor.reset(plant.limp_home_rad + noise[0])
+
+        def read(k, phi):
+            return math.degrees(sensor.read(phi + noise[k], rng))
+
+        duty, X, y = closed_loop(plant, np.concatenate([np.full(nq, lh), ref]), read, enable_k=nq)
+        cur = X[:, 2]
+    else:
+        duty = np.concatenate([np.zeros(nq), open_loop_duty(duration_s - QUIET_S, rng, dt)])[:n]
+        tr = plant.simulate(duty=duty[:-1], angle_deg=math.degrees(plant.limp_home_rad))
+        y = np.degrees(sensor.measure(tr.angle_rad + noise, rng))
+        cur = tr.current_A
     t = np.arange(n) * dt
     V = plant.supply.voltage_V
     return Recording(name=name, t_s=t, voltage_V=duty * V, angle_deg=y,
