@@ -5,6 +5,7 @@
     python scripts/bench_speed.py --repeats 3 --seconds 0.3 --no-gem
     python scripts/bench_speed.py --plant my_plant.toml # benchmark a plant file (e.g. with diagnosed effects)
     python scripts/bench_speed.py --json-out speed.json # also write the JSON object to a file (atomic)
+    python scripts/bench_speed.py --baseline 587e72d    # before/after: that git revision vs this tree
 
 What is measured (every case with gymnasium's default wrappers of ``gym.make`` and random actions drawn
 from the seeded action space before timing; episodes are reset when they end, inside the timed loop):
@@ -29,6 +30,11 @@ Output: progress on stderr, the table on stdout, and, as the very last stdout li
 at least etb_steps_per_s, etb_switching_realtime_factor, vector_steps_per_s (keyed by N),
 pendulum_steps_per_s, gem_steps_per_s (null without gym-electric-motor), reset_us, the ratios and the
 excitation timings.
+
+``--baseline REV`` measures a git revision of etb-gym side by side with this tree: it extracts REV
+(``git archive``) to a temporary directory and runs REV's bench_speed.py and this one alternately, in
+fresh processes, ``--repeats`` rounds of one repeat each (no solve_ivp), then prints medians before ->
+after per figure and, last, this tree's medians as the JSON object with a ``baseline`` entry.
 """
 from __future__ import annotations
 
@@ -37,10 +43,13 @@ import json
 import math
 import os
 import platform
+import shutil
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
+import tomllib
 import warnings
 from pathlib import Path
 
@@ -54,6 +63,7 @@ TARGETS = {   # issue 7, benchmark figures (not timed tests)
     "reset_us_max": 50.0,
 }
 GEM_ID = "Cont-SC-PermExDc-v0"
+ROOT = Path(__file__).resolve().parents[1]
 N_ACTIONS = 4096
 
 
@@ -73,6 +83,8 @@ def parse_args(argv=None):
     ap.add_argument("--no-reference", action="store_true", help="skip the solve_ivp and plain-path timings")
     ap.add_argument("--json-out", default=None, help="also write the JSON object to this file (atomically)")
     ap.add_argument("--seed", type=int, default=0, help="seed of envs and actions (default 0)")
+    ap.add_argument("--baseline", metavar="REV", default=None,
+                    help="a git revision to measure side by side with this tree (before -> after medians)")
     a = ap.parse_args(argv)
     if a.repeats < 1:
         ap.error(f"--repeats = {a.repeats}: expected an integer >= 1")
@@ -398,8 +410,91 @@ def machine_info():
     return info
 
 
+# ---------------------------------------------------------------------------------------------- --baseline
+def extract_revision(rev: str, into: Path) -> tuple[Path, Path]:
+    """REV's source tree (git archive) and an importable package directory for it (the package layout of
+    its pyproject.toml: etb_gym.envs lives in envs/, ...). Returns (source, PYTHONPATH entry)."""
+    src, pkg = into / "src", into / "pkg"
+    src.mkdir(parents=True)
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(src)], input=archive, check=True)
+    layout = tomllib.loads((src / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
+    shutil.copytree(src / layout.get("etb_gym", "etb_gym"), pkg / "etb_gym")
+    for name, path in layout.items():
+        target = pkg / name.replace(".", "/")
+        if name != "etb_gym" and not target.exists():
+            target.symlink_to(src / path, target_is_directory=True)
+    return src, pkg
+
+
+def _flatten(res: dict) -> dict:
+    """The compared figures of one run: name -> value."""
+    out = {k: res[k] for k in ("etb_steps_per_s", "etb_switching_steps_per_s", "reset_us", "pendulum_steps_per_s",
+                               "gem_steps_per_s", "plant_step_us", "kernel_1024_steps_per_s", "ratio_etb_vs_gem",
+                               "ratio_etb_vs_pendulum")}
+    out.update({f"vector_{n}_steps_per_s": v for n, v in res["vector_steps_per_s"].items()})
+    out.update({f"cpu_us_per_step.{k}": v for k, v in res["cpu_us_per_step"].items()})
+    return out
+
+
+def _medians(runs: list[dict]) -> dict:
+    out = {}
+    for k in runs[0]:
+        values = [r.get(k) for r in runs]
+        out[k] = None if None in values else statistics.median(values)
+    return out
+
+
+def compare_with_baseline(args):
+    common = ["--repeats", "1", "--seconds", str(args.seconds), "--env-id", args.env_id, "--no-reference",
+              "--excitation-s", "0.1", "--seed", str(args.seed), "--num-envs", *map(str, args.num_envs)]
+    common += ["--no-gem"] if args.no_gem else []
+    common += ["--plant", str(Path(args.plant).resolve())] if args.plant else []
+    with tempfile.TemporaryDirectory(prefix="etb_bench_baseline_") as tmp:
+        src, pkg = extract_revision(args.baseline, Path(tmp))
+        env_before = dict(os.environ, PYTHONPATH=str(pkg))
+        runs = {"before": ([sys.executable, str(src / "scripts" / "bench_speed.py"), *common], env_before),
+                "after": ([sys.executable, str(Path(__file__).resolve()), *common], dict(os.environ))}
+        results = {k: [] for k in runs}
+        load_start = machine_info().get("loadavg_1min")
+        for r in range(args.repeats):
+            for label, (cmd, env) in runs.items():
+                log(f"--baseline: round {r + 1}/{args.repeats}, {label}")
+                out = subprocess.run(cmd, env=env, cwd=tmp, capture_output=True, text=True)
+                if out.returncode:
+                    raise SystemExit(f"bench_speed ({label}) failed:\n{out.stderr[-3000:]}")
+                results[label].append(json.loads(out.stdout.strip().splitlines()[-1]))
+    load_end = machine_info().get("loadavg_1min")
+    med = {label: _medians([_flatten(r) for r in rs]) for label, rs in results.items()}
+    print(f"\n{args.baseline} (before) vs this tree (after): medians of {args.repeats} alternating rounds of "
+          f"~{args.seconds:g} s per case, load average {load_start} -> {load_end}\n")
+    print("| figure | before | after | after / before |")
+    print("|---|---|---|---|")
+    for k, b in med["before"].items():
+        a = med["after"].get(k)
+        if a is None or b is None:
+            continue
+        fmt = (lambda v: f"{v:.2f}") if (k.endswith("_us") or k.startswith(("cpu", "ratio"))) else fmt_rate
+        print(f"| {k} | {fmt(b)} | {fmt(a)} | {a / b:.2f} |")
+    res = dict(results["after"][-1])
+    res.update({k: med["after"][k] for k in ("etb_steps_per_s", "reset_us", "pendulum_steps_per_s", "gem_steps_per_s",
+                                             "ratio_etb_vs_gem", "ratio_etb_vs_pendulum")})
+    last = results["after"][-1]
+    res["etb_switching_realtime_factor"] = med["after"]["etb_switching_steps_per_s"] * \
+        last["etb_switching_realtime_factor"] / last["etb_switching_steps_per_s"]     # x the control period
+    res["vector_steps_per_s"] = {str(n): med["after"][f"vector_{n}_steps_per_s"] for n in args.num_envs}
+    res["baseline"] = {"revision": args.baseline, "medians_before": med["before"], "medians_after": med["after"],
+                       "rounds": args.repeats, "loadavg_1min": [load_start, load_end]}
+    if args.json_out:
+        atomic_write(Path(args.json_out), json.dumps(res, indent=2) + "\n")
+    print(json.dumps(res))
+    return res
+
+
 def main(argv=None):
     args = parse_args(argv)
+    if args.baseline:
+        return compare_with_baseline(args)
     log("bench_speed: building envs (first run compiles the numba kernels, ~1 min; cached afterwards)")
     load_start = machine_info().get("loadavg_1min")
     cases, notes, core = build_cases(args)

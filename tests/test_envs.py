@@ -98,6 +98,30 @@ def test_sensor_scalar_equation_equals_component():
         assert v == float(u.sensor.transform(phi, 0.0))
 
 
+def test_sensing_and_reward_kernels_compiled_equal_plain():
+    """The vector env runs the compiled kernels, the single env their py_func: the same bits."""
+    from etb_gym.envs.env import sense, step_reward
+    from etb_gym.jit import HAVE_NUMBA, py_func
+
+    if not HAVE_NUMBA:
+        pytest.skip("needs numba")
+    rng = np.random.default_rng(0)
+    for v, n, q in zip(rng.uniform(-0.1, 1.7, 200), rng.normal(0, 1e-3, 200), [0.0, 3.8e-4] * 100):
+        assert sense(v, 1.01, 1e-3, n, q) == py_func(sense)(v, 1.01, 1e-3, n, q)
+    q = 90.0 / 4096 / 57.29577951308232
+    halfway = q * (np.arange(-5, 50) + 0.5)                 # exact ties round to even in both
+    assert [sense(v, 1.0, 0.0, 0.0, q) for v in halfway] == [py_func(sense)(v, 1.0, 0.0, 0.0, q) for v in halfway]
+    for e, d, dp in rng.uniform(-90, 90, (50, 3)) / [1, 90, 90]:
+        assert step_reward(e, d, dp, 1 / 90, 0.02, 0.0125) == py_func(step_reward)(e, d, dp, 1 / 90, 0.02, 0.0125)
+    out_c, out_p = np.zeros(5, np.float32), np.zeros(5, np.float32)
+    for a, r, d, i in rng.uniform(-10, 95, (50, 4)):
+        observation.encode_into(out_c, a, r, d / 100)
+        observation.encode_current_into(out_c, i / 5)
+        py_func(observation.encode_into)(out_p, a, r, d / 100)
+        py_func(observation.encode_current_into)(out_p, i / 5)
+        assert np.array_equal(out_c, out_p)
+
+
 def test_reward_terms_and_weights():
     env = ETBEnv(reference={"name": "constant", "value_deg": 30.0}, sensor={"noise_std_rad": 0.0},
                  reward_weights={"effort": 0.0, "chattering": 0.0})
@@ -174,6 +198,8 @@ def test_params_overrides_change_physics():
     (lambda: gym.make("ETB-3B-v0").reset(options={"params": {"gearbox.ratio": 9}}), r"unknown component.*valid"),
     (lambda: gym.make("ETB-3B-v0").reset(options={"reference": {"name": "constant", "value_deg": 400}}),
      r"leaves"),
+    (lambda: gym.make("ETB-3B-v0", reference={"name": "random_steps", "high_deg": 300}).reset(), r"leaves"),
+    (lambda: gym.make("ETB-3B-v0", reference={"name": "random_steps", "min_dwell_s": -1}), r"min_dwell_s"),
 ])
 def test_bad_input_names_the_choices(call, match):
     with pytest.raises(ValueError, match=match):

@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from etb_gym.envs.references import (DEFAULT_STEPS_DEG, LIMP_HOME_DEG, REFERENCES, Chirp, Constant, PiecewiseLinear,
-                                     Ramp, Sine, Step, Steps, as_reference, make_reference)
+                                     Ramp, Sine, Step, Steps, as_reference, fill_steps_table, make_random_task,
+                                     make_reference)
+from etb_gym.jit import py_func
 
 T = np.arange(3001) * 1e-3
 
@@ -80,8 +82,36 @@ def test_pedal_is_rate_limited_and_spans_idle_to_wide_open():
     assert y.min() <= 4.0 + 1e-9 and y.max() >= 84.9
 
 
+@pytest.mark.parametrize("name, params", [("random_steps", {}), ("pedal", {}),
+                                          ("random_steps", {"duration_s": 1.0, "min_dwell_s": 0.02,
+                                                            "small_step_prob": 0.7, "high_deg": 60.0}),
+                                          ("pedal", {"idle_deg": 2.0, "max_deg": 70.0, "min_hold_s": 0.05})])
+def test_random_task_draws_what_make_reference_draws_within_its_bounds(name, params):
+    """The env validates a random task once (make_random_task) and draws from it at every reset."""
+    task = make_random_task(name, **params)
+    lo, hi = task.bounds_deg
+    for seed in range(30):
+        a = task.draw(np.random.default_rng(seed))
+        b = make_reference(name, rng=np.random.default_rng(seed), **params)
+        assert a == b
+        assert lo <= a.values_deg.min() and a.values_deg.max() <= hi
+        assert np.array_equal(a.table(T), a(T))
+
+
+def test_steps_table_kernel_edges():
+    for times, values in (([0.0], [7.0]), ([0.5, 1.0], [1.0, 2.0]), ([-1.0, 0.0005, 0.001, 2.9995], [1, 2, 3, 4]),
+                          ([0.0, 2.5, 9.0], [1, 2, 3]), ([5.0, 6.0], [1, 2]), ([0.0, 1e-3 * 3000], [1, 2])):
+        s = Steps(times, values)
+        assert np.array_equal(s.table(T), s(T)), times
+        out = np.empty(T.size)
+        py_func(fill_steps_table)(s.times_s, s.values_deg, T, out)     # the plain path fills the same table
+        assert np.array_equal(out, s(T)), times
+
+
 @pytest.mark.parametrize("call, match", [
     (lambda: make_reference("stair"), r"unknown reference 'stair'.*'step'"),
+    (lambda: make_random_task("steps"), r"not random"),
+    (lambda: make_random_task("pedal", hold_s=1), r"unknown parameter.*min_hold_s"),
     (lambda: make_reference("sine", freq=3), r"unknown parameter.*freq.*frequency_hz"),
     (lambda: make_reference("random_steps"), r"rng"),
     (lambda: Step(10, math.nan, 0.1), r"Step.final_deg"),

@@ -203,6 +203,21 @@ def test_bench_speed_says_when_a_plant_is_on_the_plain_path(capsys, tmp_path, mo
     assert "PLAIN" in out and "no compiled kernel" in out
 
 
+def test_bench_speed_baseline_tree_is_importable(tmp_path):
+    """--baseline REV extracts REV with git archive and lays out its packages as pyproject.toml maps them."""
+    import subprocess
+
+    if subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True).returncode:
+        pytest.skip("not a git checkout")
+    src, pkg = _load_bench().extract_revision("HEAD", tmp_path)
+    assert (src / "scripts" / "bench_speed.py").is_file()
+    code = "import etb_gym.envs.vector as v, etb_gym.controllers as c; print(v.__file__)"
+    out = subprocess.run([sys.executable, "-c", code], env={"PYTHONPATH": str(pkg), "PATH": "/usr/bin:/bin"},
+                         cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().startswith(str(pkg))
+
+
 def test_bench_speed_rejects_bad_arguments(capsys):
     bench = _load_bench()
     for bad in (["--repeats", "0"], ["--seconds", "-1"], ["--num-envs", "0"], ["--plant", "/nonexistent.toml"]):
