@@ -25,6 +25,9 @@ def _add_diagnose(sub):
     p.add_argument("--jobs", type=int, default=2, help="parallel fits (default 2)")
     p.add_argument("--sensor-resolution-deg", type=float, default=None,
                    help="the resolution the model assumes for the angle sensor (default 90/4096 deg)")
+    p.add_argument("--substeps", type=int, default=None,
+                   help="integrator substeps per sample (default: chosen so the model's own error stays below "
+                        "half the noise floor, 20..160)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, summary only")
     p.set_defaults(func=_run_diagnose)
 
@@ -44,6 +47,11 @@ def _run_diagnose(a) -> int:
     if a.max_effects < 0 or a.jobs < 1:
         print("etb-gym diagnose: --max-effects must be >= 0 and --jobs >= 1", file=sys.stderr)
         return 2
+    if a.substeps is not None:
+        if a.substeps < 1:
+            print(f"etb-gym diagnose: --substeps {a.substeps}: expected a positive integer", file=sys.stderr)
+            return 2
+        kw["substeps"] = a.substeps
     plant = None
     if a.plant:
         from .plantfile import load_plant

@@ -70,9 +70,15 @@ def test_cli_rejects_bad_recording_with_a_message(tmp_path, capsys):
     assert "missing column 'angle_deg'" in capsys.readouterr().err
 
 
-def test_diagnose_validates_options():
+def test_diagnose_validates_options(tmp_path, capsys):
     with pytest.raises(ValueError, match="unknown candidate"):
         diagnose([], candidates=("warp_drive",))
+    rec = make_recording(make_plant("3B"), np.random.default_rng(0), duration_s=0.6, name="r.csv")
+    with pytest.raises(ValueError, match=r"substeps = 0\b.*positive integer"):
+        diagnose([rec], substeps=0)
+    save_recording(rec, tmp_path / "r.csv")
+    assert cli_main(["diagnose", str(tmp_path / "r.csv"), "--out", str(tmp_path / "o"), "--substeps", "-3"]) == 2
+    assert "--substeps -3: expected a positive integer" in capsys.readouterr().err
 
 
 def test_closed_loop_recording_is_the_reference_pid_on_the_sensor_readings():
