@@ -80,7 +80,7 @@ def observe_rows(rows, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps,
                  noise_pos, noise_std, sensor, observe_current, state_scale, clip, obs_low, obs_high, info_cols,
                  obs, info):
     """Sensing, observation and info of sub-envs ``rows``: the single env's ``_observe`` per row, written to
-    ``obs[j]`` and ``info[:, j]`` for ``b = rows[j]``. ``sensor`` = (gain, offset, resolution, current noise std,
+    ``obs[j]`` and ``info[:, j]`` for ``b = rows[j]`` (the info keys' order: INFO_KEYS, torques, t_s). ``sensor`` = (gain, offset, resolution, current noise std,
     current resolution); ``state_scale`` is empty unless the full state is observed; ``info_cols``: the AUX
     column of each torque key (-1: no such component, 0). Returns how many of the rows used up their noise
     block (the caller draws the next block before their next reading, as the single env does)."""
@@ -88,7 +88,6 @@ def observe_rows(rows, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps,
     n_delay = delay_buf.shape[1]
     n_obs = obs.shape[1]
     n_x = state_scale.shape[0]
-    n_info = info.shape[0]
     for j in range(rows.shape[0]):
         b = rows[j]
         phi = X[b, 0]
@@ -114,18 +113,36 @@ def observe_rows(rows, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps,
         if clip:
             for m in range(n_obs):
                 o[m] = max(min(o[m], obs_high[m]), obs_low[m])
-        info[0, j] = phi * RAD2DEG
         info[1, j] = s_deg
-        info[2, j] = X[b, 1] * RAD2DEG
-        info[3, j] = X[b, 2]
-        info[4, j] = d * supply_V[b]
-        info[5, j] = d
         info[6, j] = r
-        info[7, j] = supply_V[b]
-        for c in range(info_cols.shape[0]):
-            info[8 + c, j] = AUX[b, info_cols[c]] if info_cols[c] >= 0 else 0.0
-        info[n_info - 1, j] = K[b] * dt
+    fill_info(rows, X, AUX, last_duty, supply_V, K, dt, info_cols, info)
     return used_up
+
+
+@kernel
+def fill_info(rows, X, AUX, last_duty, supply_V, K, dt, info_cols, info):
+    """The rows of the info matrix that observe_rows leaves (all but the sensed angle and the reference), one
+    key at a time: the rows lie N * 8 bytes apart, so writing all keys of one sub-env would touch a cache
+    line per key in the same cache set (measured: 4x slower at N = 1024)."""
+    n = rows.shape[0]
+    for j in range(n):
+        info[0, j] = X[rows[j], 0] * RAD2DEG
+    for j in range(n):
+        info[2, j] = X[rows[j], 1] * RAD2DEG
+    for j in range(n):
+        info[3, j] = X[rows[j], 2]
+    for j in range(n):
+        info[4, j] = last_duty[rows[j]] * supply_V[rows[j]]
+    for j in range(n):
+        info[5, j] = last_duty[rows[j]]
+    for j in range(n):
+        info[7, j] = supply_V[rows[j]]
+    for c in range(info_cols.shape[0]):
+        col = info_cols[c]
+        for j in range(n):
+            info[8 + c, j] = AUX[rows[j], col] if col >= 0 else 0.0
+    for j in range(n):
+        info[info.shape[0] - 1, j] = K[rows[j]] * dt
 
 
 def _max_threads() -> int:
