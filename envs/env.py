@@ -420,7 +420,7 @@ class ETBEnv(gym.Env):
         """Everything a reset decides, drawn from ``rng`` in a fixed order (randomization, then reference).
         Shared by the single env and the vector env so that both draw identically."""
         opts = {} if options is None else options
-        if not isinstance(opts, Mapping):
+        if opts.__class__ is not dict and not isinstance(opts, Mapping):     # (typing's isinstance is slow)
             raise ValueError(f"reset options = {opts!r}: expected a dict with keys from {list(RESET_OPTIONS)}")
         if opts:
             bad = sorted(set(opts) - set(RESET_OPTIONS))
