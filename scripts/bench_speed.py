@@ -477,11 +477,11 @@ def compare_with_baseline(args):
         fmt = (lambda v: f"{v:.2f}") if (k.endswith("_us") or k.startswith(("cpu", "ratio"))) else fmt_rate
         print(f"| {k} | {fmt(b)} | {fmt(a)} | {a / b:.2f} |")
     res = dict(results["after"][-1])
+    dt = res["etb_sim_s_per_wall_s"] / res["etb_steps_per_s"]      # the control period (of the last run)
     res.update({k: med["after"][k] for k in ("etb_steps_per_s", "reset_us", "pendulum_steps_per_s", "gem_steps_per_s",
                                              "ratio_etb_vs_gem", "ratio_etb_vs_pendulum")})
-    last = results["after"][-1]
-    res["etb_switching_realtime_factor"] = med["after"]["etb_switching_steps_per_s"] * \
-        last["etb_switching_realtime_factor"] / last["etb_switching_steps_per_s"]     # x the control period
+    res["etb_sim_s_per_wall_s"] = med["after"]["etb_steps_per_s"] * dt
+    res["etb_switching_realtime_factor"] = med["after"]["etb_switching_steps_per_s"] * dt
     res["vector_steps_per_s"] = {str(n): med["after"][f"vector_{n}_steps_per_s"] for n in args.num_envs}
     res["baseline"] = {"revision": args.baseline, "medians_before": med["before"], "medians_after": med["after"],
                        "rounds": args.repeats, "loadavg_1min": [load_start, load_end]}
