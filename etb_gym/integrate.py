@@ -395,6 +395,7 @@ class Engine:
     """The compiled (or plain) stepper of one plant composition."""
 
     _cache: dict = {}
+    _plain_cache: dict = {}
 
     def __init__(self, components, param_vectors):
         self.layout = layout(components, param_vectors)
@@ -420,11 +421,15 @@ class Engine:
         return ns
 
     def _build_plain(self, kernels, advances):
-        ns = self._namespace(kernels, advances, plain=True)
-        ns["prange"] = range
-        ns["borrow"] = _identity
-        exec(compile(self.source, "<etb_gym plain stepper>", "exec"), ns)
-        return _Fns(ns)
+        key = (self.source, tuple(kernels), tuple(advances))
+        fns = Engine._plain_cache.get(key)
+        if fns is None:        # once per composition: plants of one composition share their stepper
+            ns = self._namespace(kernels, advances, plain=True)
+            ns["prange"] = range
+            ns["borrow"] = _identity
+            exec(compile(self.source, "<etb_gym plain stepper>", "exec"), ns)
+            fns = Engine._plain_cache[key] = _Fns(ns)
+        return fns
 
     def _build_fast(self, components, kernels, advances):
         key = (self.source, tuple(kernels), tuple(advances))
