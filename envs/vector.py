@@ -337,7 +337,7 @@ class ETBVectorEnv(VectorEnv):
             raise ResetNeeded("call reset() before step()")
         env, N = self.env, self.num_envs
         a = np.asarray(actions)
-        if a.dtype.kind != "f":
+        if a.dtype != np.float32 and a.dtype != np.float64:     # the dtypes clip_duties is compiled for
             a = a.astype(float)
         if a.size != N:
             raise ValueError(f"actions have shape {a.shape}: expected ({N}, 1), one duty cycle per sub-env")
