@@ -744,8 +744,7 @@ class Run:
         if self.cfg.normalize:
             _save_pickle_of(lambda fh: _dump(self.env, fh), self.out / "vecnormalize.pkl")
         if self.eval_rows:
-            plot_learning_curve(self.eval_rows, self.out / "learning_curve.png",
-                                title=f"{self.cfg.algo.upper()} on {self.cfg.env_id}")
+            plot_learning_curve(self.eval_rows, self.out / "learning_curve.png", title=_curve_title(self.cfg))
 
 
 def _dump(obj, fh):
@@ -858,7 +857,7 @@ def train(cfg: RunConfig | None, out, *, resume: bool = False, force: bool = Fal
         log(f"time limit {cfg.time_limit_s:g} s reached at {model.num_timesteps} timesteps")
     except TrainingInterrupted as exc:
         if run.eval_rows:
-            plot_learning_curve(run.eval_rows, out / "learning_curve.png", title=f"{cfg.algo.upper()} on {cfg.env_id}")
+            plot_learning_curve(run.eval_rows, out / "learning_curve.png", title=_curve_title(cfg))
         log(f"{exc}; continue with --resume {out}")
         run.env.close()
         raise
@@ -881,6 +880,12 @@ def _in_main_thread() -> bool:
 
 
 # ------------------------------------------------------------------------------------------------ plots
+def _curve_title(cfg: RunConfig) -> str:
+    task = cfg.task_config
+    res = f" (residual on {task.residual}, scale {task.residual_scale:g})" if task.residual else ""
+    return f"{cfg.algo.upper()}{res} on {cfg.env_id}"
+
+
 def plot_learning_curve(rows: list[dict], path: Path, title: str = "") -> None:
     """Evaluation score (geometric-mean RMS ratio to the better classical controller) and training return."""
     import matplotlib
