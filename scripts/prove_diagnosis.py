@@ -1,11 +1,13 @@
 #!/usr/bin/env python
 """Blind proof of the diagnosis tool: rig-like recordings from a truth plant with a concealed effect.
 
-For every effect family and seed: build a truth plant (calibration parameters perturbed, integrator at 40
-substeps instead of the tool's 20, the concealed effect at a random magnitude between large and ~3x the
-sensor noise), record it open- or closed-loop (PI loop) with white or coloured (AR(1)) sensor noise and
-12-bit quantization, write the files, and run ``etb-gym diagnose`` on the files only. Then score:
+For every effect family and seed: build a truth plant (calibration parameters perturbed, integrator at 200
+substeps, the concealed effect at a random magnitude between large and about the detection limit), record it
+open-loop or closed-loop (the package's PID on the sensor's readings) with white or coloured (AR(1)) sensor
+noise and 12-bit quantization, write the files, and run ``etb-gym diagnose`` on the files only. Then score:
 
+  size       how far the effect moves the reading: max 100 ms moving RMS of (with - without) / noise;
+             runs with size >= 3 are "detectable" (the issue's lower end of magnitudes)
   named      the concealed effect is the first one reported (clean runs: no effect reported)
   windows    precision / recall of mismatch_windows_s against where the concealed effect moves the angle
              by more than 3x the noise (truth with vs without the effect)
@@ -14,7 +16,8 @@ sensor noise), record it open- or closed-loop (PI loop) with white or coloured (
   time       wall time of the diagnosis
 
     python scripts/prove_diagnosis.py --quick            # a few families, short recordings (tests)
-    python scripts/prove_diagnosis.py --seeds 20 --out docs/figures/diagnosis
+    python scripts/prove_diagnosis.py --seeds 4 --out out/proof       # every family, both loops and noise levels
+    python scripts/prove_diagnosis.py --seeds 8 --out out/proof --resume    # more seeds later, nothing re-run
 """
 from __future__ import annotations
 
@@ -258,7 +261,9 @@ def summarize(rows):
              "rms_after": float(np.median([r["rms_after"] for r in rs])),
              "heldout_reduction": float(np.median([1 - r["heldout_rms_after"] / r["heldout_rms_before"] for r in det or rs])),
              "heldout_after_over_noise": float(np.median([r["heldout_rms_after"] / r["true_noise"] for r in det or rs])),
-             "time_s": float(np.median([r["time_s"] for r in rs]))}
+             "time_s": float(np.median([r["time_s"] for r in rs])),
+             "verdicts": {v: sum(r["verdict"] == v for r in rs)
+                          for v in ("match", "explained", "partly_explained", "unexplained") if any(r["verdict"] == v for r in rs)}}
         wp = [r for r in det if "win_precision" in r]
         if wp:
             d["win_precision"] = float(np.mean([r["win_precision"] for r in wp]))
@@ -273,8 +278,8 @@ def summarize(rows):
 
 def table(fams) -> str:
     L = ["| family | runs (detectable) | named first: all / detectable (clean: none claimed) | RMS before / after [deg] | "
-         "held-out RMS reduction | held-out after / noise | windows P / R | param median rel. err | 90 % coverage | time [s] |",
-         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+         "held-out RMS reduction | held-out after / noise | windows P / R | param median rel. err | 90 % coverage | time [s] | verdicts |",
+         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for d in fams:
         w = f"{d['win_precision']:.2f} / {d['win_recall']:.2f}" if "win_precision" in d else "-"
         p = f"{d['param_median_rel_err']:.1%}" if "param_median_rel_err" in d else "-"
@@ -282,7 +287,8 @@ def table(fams) -> str:
         nd = "-" if d["named_rate_detectable"] != d["named_rate_detectable"] else f"{d['named_rate_detectable']:.0%}"
         L.append(f"| {d['family']} | {d['runs']} ({d['detectable']}) | {d['named_rate']:.0%} / {nd} | "
                  f"{d['rms_before']:.4f} / {d['rms_after']:.4f} | {d['heldout_reduction']:.0%} | "
-                 f"{d['heldout_after_over_noise']:.2f} | {w} | {p} | {c} | {d['time_s']:.0f} |")
+                 f"{d['heldout_after_over_noise']:.2f} | {w} | {p} | {c} | {d['time_s']:.0f} | "
+                 + ", ".join(f"{k} {n}" for k, n in d["verdicts"].items()) + " |")
     return "\n".join(L)
 
 
@@ -335,7 +341,7 @@ def main(argv=None):
         todo = []
     from tqdm import tqdm
     with tempfile.TemporaryDirectory() as work:
-        bar = tqdm(total=len(todo), unit="run")
+        bar = tqdm(total=len(todo), unit="run", disable=not todo)
         for f, s in todo:                   # seeds outer: a stopped proof still covers every family
             row, outdir = run_case(f, s, a, work)
             rows.append(row)
