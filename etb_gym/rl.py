@@ -903,7 +903,7 @@ def plot_learning_curve(rows: list[dict], path: Path, title: str = "") -> None:
     a1.set_yscale("log")
     a1.set_ylabel("RMS error / best classical")
     a1.legend(fontsize=7, loc="upper right")
-    a1.set_title(title + f" ({len(keys)} benchmark runs per evaluation)")
+    a1.set_title((title + "\n" if title else "") + f"{len(keys)} benchmark runs per evaluation", fontsize=10)
     a1.grid(alpha=0.3, which="both")
     a2.plot(x, [r["train_return"] for r in rows], "-", color="tab:blue")
     a2.set_ylabel("training episode return\n(mean of last 20)")
