@@ -4,7 +4,8 @@ A plant is a list of components (see ``components/base.py``). From that list thi
 the source of the stepper, written once and used in two builds:
 
     rhs(t, x, u, P, dx, aux)                        time derivatives of the full state (one evaluation)
-    substep(t, h, x, u, P, dx, aux)                 one semi-implicit Euler substep
+    rhs_carried(t, x, u, P, dx, aux, c...)          the same, given the carried values c at x (below)
+    substep(t, h, x, u, P, dx, aux, c...) -> c...   one semi-implicit Euler substep
     control_step(x, duty, V, P, t0, dt, n, sw, f, aux)   one control period: PWM bridge + n substeps
     control_step_dx(..., aux, dx)                   the same with caller-owned scratch dx (no allocation)
     simulate(x0, duty[], V[], P, ...)               many control periods
@@ -25,7 +26,17 @@ Substep scheme (h = dt/n): all kernels are evaluated at the start of the substep
     i     <- i + h * (u - sum E) / sum L
     omega <- omega + h * sum T / J
     phi   <- phi + h * omega_new                     (symplectic Euler: stiff contacts stay bounded)
+    c_k   <- carry_k(phi_new, omega_new, i_new, p_k)  if the component has a carry (see below)
     s_k   <- advance_k(h, ..., omega_new) if the component has one, else s_k + h * ds_k
+
+Carried values. A component may declare ``carry(phi, omega, i, p)``, a value of the shaft and coil state
+that its kernel and its advance both need (LuGre: the Stribeck curve g(omega)); its kernel and advance
+then take it as their last argument. The stepper computes it once per substep, at the new state, and
+hands it to the advance and, as a local ``c<k>`` of the generated code, to the kernel evaluation of the
+next substep: that kernel sees exactly this state (x[0:3] are written from the same locals, P does not
+change), so the value is the one it would compute, bit for bit. Each control period (and every ``rhs``
+call) starts from the state: ``c<k> = carry_k(x[0], x[1], x[2], p_k)``. Without carries the generated
+functions simply have no ``c`` arguments. (LuGre: one exp and one sqrt fewer per substep; docs/speed.md.)
 """
 from __future__ import annotations
 
@@ -76,32 +87,51 @@ GROUP = 2   # plants stepped in lockstep by batch_step (averaged PWM): -9 % CPU 
 
 
 def generate_source(components, lay: Layout) -> str:
-    """Python source of the stepper for this composition (kernels are bound as k0, k1, ... a0, ...)."""
+    """Python source of the stepper for this composition (kernels are bound as k0, k1, ..., advances as
+    a0, ..., carries as g0, ...)."""
     n = len(components)
+    carried = [k for k, c in enumerate(components) if c.carry is not None]
+
+    def c_args(g=""):    # the carried values as trailing arguments: ", c1" (plant g of a group: ", c1g0")
+        return "".join(f", c{k}{g}" for k in carried)
+
+    def c_set(g=""):     # the left-hand side that receives them from substep: "c1 = " ("" without carries)
+        return ", ".join(f"c{k}{g}" for k in carried) + " = " if carried else ""
+
+    def c_init(x, P, g="", ind="    "):   # the carried values at the state x (start of a period, rhs)
+        return "".join(f"{ind}c{k}{g} = g{k}({x}[0], {x}[1], {x}[2], {P}[{lay.param_slices[k][0]}:"
+                       f"{lay.param_slices[k][1]}])\n" for k in carried)
+
     body = []
     for k, c in enumerate(components):
         (s0, s1), (p0, p1) = lay.state_slices[k], lay.param_slices[k]
-        body.append(f"    tq, e, l = k{k}(t, phi, omega, i, u, x[{s0}:{s1}], P[{p0}:{p1}], dx[{s0}:{s1}])")
+        ck = f", c{k}" if k in carried else ""
+        body.append(f"    tq, e, l = k{k}(t, phi, omega, i, u, x[{s0}:{s1}], P[{p0}:{p1}], dx[{s0}:{s1}]{ck})")
         body.append(f"    aux[{k}] = tq")
         body.append("    T += tq")
         body.append("    E += e")
         body.append("    L += l")
     eval_block = "\n".join(body)
-    adv = []
+    adv = [f"    c{k} = g{k}(phi, omega, i, P[{lay.param_slices[k][0]}:{lay.param_slices[k][1]}])"
+           for k in carried]
     for k, c in enumerate(components):
         (s0, s1), (p0, p1) = lay.state_slices[k], lay.param_slices[k]
         if s1 == s0:
             continue
         if c.advance is not None:
-            adv.append(f"    a{k}(h, t, phi, omega, i, u, x[{s0}:{s1}], P[{p0}:{p1}])")
+            ck = f", c{k}" if k in carried else ""
+            adv.append(f"    a{k}(h, t, phi, omega, i, u, x[{s0}:{s1}], P[{p0}:{p1}]{ck})")
         else:
             adv.append(f"    for j in range({s0}, {s1}):\n        x[j] += h * dx[j]")
+    if carried:
+        adv.append("    return " + ", ".join(f"c{k}" for k in carried))
     adv_block = "\n".join(adv) if adv else "    pass"
     G = GROUP
-    setup = "\n".join(f"    xg{g} = X[b0 + {g}]\n    Pg{g} = P[b0 + {g}]\n    ag{g} = AUX[b0 + {g}]\n"
-                      f"    dg{g} = DX[b0 + {g}]\n    ug{g} = duty[b0 + {g}] * supply_V[b0 + {g}]\n"
-                      f"    tg{g} = T0[b0 + {g}]" for g in range(G))
-    steps = "\n".join(f"        substep(tg{g} + k * h, h, xg{g}, ug{g}, Pg{g}, dg{g}, ag{g})" for g in range(G))
+    setup = "".join(f"    xg{g} = X[b0 + {g}]\n    Pg{g} = P[b0 + {g}]\n    ag{g} = AUX[b0 + {g}]\n"
+                    f"    dg{g} = DX[b0 + {g}]\n    ug{g} = duty[b0 + {g}] * supply_V[b0 + {g}]\n"
+                    f"    tg{g} = T0[b0 + {g}]\n" + c_init(f"xg{g}", f"Pg{g}", f"g{g}") for g in range(G))
+    steps = "\n".join(f"        {c_set(f'g{g}')}substep(tg{g} + k * h, h, xg{g}, ug{g}, Pg{g}, dg{g}, ag{g}"
+                      f"{c_args(f'g{g}')})" for g in range(G))
     oks = "\n".join(f"    OK[b0 + {g}] = _finite(xg{g})" for g in range(G))
     return f'''# generated by etb_gym.integrate for: {", ".join(type(c).__name__ for c in components)}
 import math
@@ -113,6 +143,11 @@ GROUP = {G}
 
 
 def rhs(t, x, u, P, dx, aux):
+{c_init("x", "P")}    rhs_carried(t, x, u, P, dx, aux{c_args()})
+
+
+def rhs_carried(t, x, u, P, dx, aux{c_args()}):
+    """rhs, given the components' carried values c<k> at the state x."""
     phi = x[0]
     omega = x[1]
     i = x[2]
@@ -125,8 +160,9 @@ def rhs(t, x, u, P, dx, aux):
     dx[2] = (u - E) / L
 
 
-def substep(t, h, x, u, P, dx, aux):
-    rhs(t, x, u, P, dx, aux)
+def substep(t, h, x, u, P, dx, aux{c_args()}):
+    """One substep from x, given the carried values at x; returns those at the new x."""
+    rhs_carried(t, x, u, P, dx, aux{c_args()})
     i = x[2] + h * dx[2]
     omega = x[1] + h * dx[1]
     phi = x[0] + h * omega
@@ -142,12 +178,12 @@ def control_step_dx(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux, 
     P = borrow(P)
     aux = borrow(aux)
     dx = borrow(dx)
-    hmax = dt / n_sub
+{c_init("x", "P")}    hmax = dt / n_sub
     if not switching:
         u = duty * supply_V
         h = dt / n_sub
         for k in range(n_sub):
-            substep(t0 + k * h, h, x, u, P, dx, aux)
+            {c_set()}substep(t0 + k * h, h, x, u, P, dx, aux{c_args()})
     else:
         n_per = int(round(dt * f_pwm))
         if n_per < 1:
@@ -165,7 +201,7 @@ def control_step_dx(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux, 
                     m = 1
                 h = ton / m
                 for k in range(m):
-                    substep(t, h, x, von, P, dx, aux)
+                    {c_set()}substep(t, h, x, von, P, dx, aux{c_args()})
                     t += h
             if toff > 0.0:
                 m = int(math.ceil(toff / hmax - 1e-9))
@@ -173,7 +209,7 @@ def control_step_dx(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux, 
                     m = 1
                 h = toff / m
                 for k in range(m):
-                    substep(t, h, x, 0.0, P, dx, aux)
+                    {c_set()}substep(t, h, x, 0.0, P, dx, aux{c_args()})
                     t += h
     ok = True
     for j in range(N_STATES):
@@ -223,8 +259,7 @@ def control_step_group(X, duty, supply_V, P, T0, AUX, DX, OK, b0, dt, n_sub):
     outlive this call)."""
     DX = borrow(DX)
     h = dt / n_sub
-{setup}
-    for k in range(n_sub):
+{setup}    for k in range(n_sub):
 {steps}
 {oks}
 
@@ -272,7 +307,7 @@ def batch_step_serial(X, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, AUX
 def _kernel_digest(components) -> str:
     h = hashlib.sha256()
     for c in components:
-        for fn in (c.kernel, c.advance):
+        for fn in (c.kernel, c.advance, c.carry):
             if fn is None:
                 continue
             f = py_func(fn)
@@ -379,6 +414,7 @@ THREAD_POOL = configure_thread_pool()
 # change rounding against the plain path (contract -> FMA) or fold away the finiteness check (nnan/ninf).
 JIT_OPTIONS = {
     "rhs": {"inline": "always"},
+    "rhs_carried": {"inline": "always"},
     "substep": {"inline": "always"},
     "control_step_dx": {},
     "control_step": {},
@@ -388,7 +424,7 @@ JIT_OPTIONS = {
     "batch_step": {"parallel": True},
     "batch_step_serial": {},
 }
-STEPPER_REVISION = "3"   # bump when borrow() or JIT_OPTIONS change: part of the kernel-cache digest
+STEPPER_REVISION = "4"   # bump when borrow() or JIT_OPTIONS change: part of the kernel-cache digest
 
 
 class Engine:
@@ -400,51 +436,46 @@ class Engine:
     def __init__(self, components, param_vectors):
         self.layout = layout(components, param_vectors)
         self.source = generate_source(components, self.layout)
-        kernels = [c.kernel for c in components]
-        advances = [c.advance for c in components]
-        self.fast = HAVE_NUMBA and all(_is_jitted(k) for k in kernels) and \
-            all(a is None or _is_jitted(a) for a in advances)
+        # the functions the generated source calls: k<k> kernel, a<k> advance, g<k> carry of component k
+        self.bound = {f"{pre}{k}": fn for k, c in enumerate(components)
+                      for pre, fn in (("k", c.kernel), ("a", c.advance), ("g", c.carry)) if fn is not None}
+        self.fast = HAVE_NUMBA and all(_is_jitted(f) for f in self.bound.values())
         if HAVE_NUMBA and not self.fast:
-            names = [type(c).__name__ for c, k in zip(components, kernels) if not _is_jitted(k)]
+            names = [type(c).__name__ for c in components
+                     if not all(f is None or _is_jitted(f) for f in (c.kernel, c.advance, c.carry))]
             warnings.warn(f"component(s) {names} have no compiled kernel (decorate them with "
                           "etb_gym.jit.kernel); this plant runs on the plain Python path, ~100x slower",
                           FastPathUnavailableWarning, stacklevel=3)
-        self.plain = self._build_plain(kernels, advances)
-        self.fns = self._build_fast(components, kernels, advances) if self.fast else self.plain
+        self.plain = self._build_plain()
+        self.fns = self._build_fast(components) if self.fast else self.plain
 
-    def _namespace(self, kernels, advances, plain):
-        ns = {}
-        for k, (kf, af) in enumerate(zip(kernels, advances)):
-            ns[f"k{k}"] = py_func(kf) if plain else kf
-            if af is not None:
-                ns[f"a{k}"] = py_func(af) if plain else af
-        return ns
+    def _key(self):
+        return (self.source, tuple(self.bound.items()))
 
-    def _build_plain(self, kernels, advances):
-        key = (self.source, tuple(kernels), tuple(advances))
-        fns = Engine._plain_cache.get(key)
+    def _build_plain(self):
+        fns = Engine._plain_cache.get(self._key())
         if fns is None:        # once per composition: plants of one composition share their stepper
-            ns = self._namespace(kernels, advances, plain=True)
+            ns = {name: py_func(f) for name, f in self.bound.items()}
             ns["prange"] = range
             ns["borrow"] = _identity
             exec(compile(self.source, "<etb_gym plain stepper>", "exec"), ns)
-            fns = Engine._plain_cache[key] = _Fns(ns)
+            fns = Engine._plain_cache[self._key()] = _Fns(ns)
         return fns
 
-    def _build_fast(self, components, kernels, advances):
-        key = (self.source, tuple(kernels), tuple(advances))
+    def _build_fast(self, components):
+        key = self._key()
         if key in Engine._cache:
             return Engine._cache[key]
         import numba
 
         fns = None
-        if all(_importable(k) for k in kernels) and all(a is None or _importable(a) for a in advances):
+        if all(_importable(f) for f in self.bound.values()):
             try:
-                fns = self._load_cached_module(components, kernels, advances)
+                fns = self._load_cached_module(components)
             except OSError:
                 fns = None
         if fns is None:  # kernels defined somewhere numba cannot cache from: compile in memory
-            ns = self._namespace(kernels, advances, plain=False)
+            ns = dict(self.bound)
             ns["prange"] = numba.prange
             ns["borrow"] = borrow
             exec(compile(self.source, "<etb_gym fast stepper>", "exec"), ns)
@@ -454,14 +485,9 @@ class Engine:
         Engine._cache[key] = fns
         return fns
 
-    def _load_cached_module(self, components, kernels, advances):
-        imports = []
-        for k, (kf, af) in enumerate(zip(kernels, advances)):
-            f = py_func(kf)
-            imports.append(f"from {f.__module__} import {f.__name__} as k{k}")
-            if af is not None:
-                g = py_func(af)
-                imports.append(f"from {g.__module__} import {g.__name__} as a{k}")
+    def _load_cached_module(self, components):
+        imports = [f"from {py_func(f).__module__} import {py_func(f).__name__} as {name}"
+                   for name, f in self.bound.items()]
         src = self.source.replace("import numpy as np\n", "import numpy as np\nfrom numba import njit, prange\n"
                                   "from etb_gym.integrate import borrow\n"
                                   + "\n".join(imports) + "\n", 1)

@@ -15,9 +15,11 @@ from etb_gym import make_plant
 from etb_gym.components import LuGreFriction
 from etb_gym.components.base import REGISTRY, Component, Params
 from etb_gym.components.effects_electrical import CoilHeating
+from etb_gym.components.effects_friction import AngleDependentFriction, StribeckFriction
 from etb_gym.components.effects_mechanical import Backlash
+from etb_gym.components.friction import lugre_friction_advance, lugre_friction_kernel, lugre_stribeck
 from etb_gym.integrate import FastPathUnavailableWarning
-from etb_gym.jit import HAVE_NUMBA
+from etb_gym.jit import HAVE_NUMBA, kernel
 
 ROOT = Path(__file__).resolve().parents[1]
 needs_numba = pytest.mark.skipif(not HAVE_NUMBA, reason="the fast path needs numba")
@@ -122,6 +124,66 @@ def test_step_batch_does_not_leak_or_alias():
     assert [sys.getrefcount(a) for a in (X, P, V)] == refs
     np.testing.assert_array_equal(P, P0)               # parameters are read only
     assert np.all(np.isfinite(X))
+
+
+# ---------------------------------------------------------------------------------------------- carried values
+@kernel
+def _lugre_kernel_recomputing(t, phi, omega, i, u, s, p, ds):
+    return lugre_friction_kernel(t, phi, omega, i, u, s, p, ds, lugre_stribeck(phi, omega, i, p))
+
+
+@kernel
+def _lugre_advance_recomputing(h, t, phi, omega, i, u, s, p):
+    lugre_friction_advance(h, t, phi, omega, i, u, s, p, lugre_stribeck(phi, omega, i, p))
+
+
+class _LuGreRecomputing(LuGreFriction):
+    """LuGre without a carry: kernel and advance each evaluate g(omega) themselves (the naive path)."""
+
+    kind = ""                      # not registered
+    kernel = staticmethod(_lugre_kernel_recomputing)
+    advance = staticmethod(_lugre_advance_recomputing)
+    carry = None
+
+
+def _carry_cases():
+    eff = [CoilHeating(), Backlash(play_rad=0.01), StribeckFriction(stiction_Nm=0.05), AngleDependentFriction()]
+    return {"3B": make_plant("3B"), "3C": make_plant("3C"), "3A-switching": make_plant("3A", pwm_mode="switching"),
+            "3B-switching-9V": make_plant("3B", pwm_mode="switching", supply_V=9.0),
+            "3B+effects": make_plant("3B", effects=eff)}
+
+
+@pytest.mark.parametrize("name", list(_carry_cases()))
+def test_carried_stribeck_curve_gives_the_same_bits_as_recomputing_it(name, rich_duty):
+    """LuGre's g(omega) is computed once per substep and carried to the next substep's kernel
+    (integrate.py, "Carried values"): the trajectories equal, bit for bit, those of a LuGre that evaluates
+    g in its kernel and again in its advance, on the fast and the plain path, single and batch steps."""
+    p = _carry_cases()[name]
+    q = p.replace(friction=_LuGreRecomputing(p.friction.params))
+    assert "c1 = substep(" in p.engine.source and "c1" not in q.engine.source
+    assert p.fast == q.fast == HAVE_NUMBA
+    sw = "switching" in name
+    d = rich_duty[:2000:4 if sw else 1]
+    paths = ("fast", "plain") if HAVE_NUMBA else ("plain",)
+    for path in paths:
+        dd = d if path == paths[0] else np.concatenate([d[100:140], d[-40:]])
+        a, b = p.simulate(dd, angle_deg=20.0, path=path), q.simulate(dd, angle_deg=20.0, path=path)
+        np.testing.assert_array_equal(a.states, b.states)
+        for k in a.torques_Nm:
+            np.testing.assert_array_equal(a.torques_Nm[k], b.torques_Nm[k])
+        if path == paths[0]:       # not a trivial comparison: the plate swept the range, the bristle moved
+            assert np.ptp(a.angle_deg) > 10.0 and np.ptp(a.state("friction.z_rad")) > 0.0
+    X, P, V, D = _batch_inputs(p, 7)
+    D[3, 0], D[4, 1] = 1e-12, 1.0 - 1e-12
+    for parallel in (None, False):
+        Xp, Xq, Ap, Aq = X.copy(), X.copy(), np.zeros((7, len(p.components))), np.zeros((7, len(p.components)))
+        for k in range(D.shape[0]):
+            assert p.step_batch(Xp, D[k], V, P, np.full(7, k * 1e-3), Ap, parallel=parallel).all()
+            q.step_batch(Xq, D[k], V, P, np.full(7, k * 1e-3), Aq, parallel=parallel)
+        np.testing.assert_array_equal(Xp, Xq)
+        np.testing.assert_array_equal(Ap, Aq)
+    ref_p, ref_q = p.reference(d[:5], angle_deg=20.0), q.reference(d[:5], angle_deg=20.0)   # rhs from the state
+    np.testing.assert_array_equal(ref_p.states, ref_q.states)
 
 
 # ---------------------------------------------------------------------------------------------- plain fallback

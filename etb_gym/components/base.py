@@ -17,6 +17,12 @@ A component whose states need a special update at the integrator's fixed step (s
 also provides ``advance(h, t, phi, omega, i, u, s, p)`` which updates ``s`` in place; otherwise the
 integrator applies explicit Euler with ``ds``. Adding a component never means editing the integrator:
 the integrator composes whatever kernels the plant holds (see ``etb_gym/integrate.py``).
+
+A component whose kernel and advance both need the same costly value of the shaft and coil state (LuGre:
+the Stribeck curve g(omega)) may declare ``carry(phi, omega, i, p) -> float``; its kernel and advance then
+take that value as an extra last argument ``c``. The integrator computes it once per substep, at the new
+state, and hands it to the advance and to the next substep's kernel, which sees exactly that state; so
+a carry must depend on nothing but (phi, omega, i, p), never on t, u or the component's own states.
 """
 from __future__ import annotations
 
@@ -94,6 +100,7 @@ class Component:
     state_units: ClassVar[tuple[str, ...]] = ()
     kernel: ClassVar[Any] = None      # set as staticmethod(kernel_fn) so instances return the dispatcher
     advance: ClassVar[Any] = None
+    carry: ClassVar[Any] = None       # optional carry(phi, omega, i, p): see the module docstring
     description: ClassVar[str] = ""
 
     def __init_subclass__(cls, **kw):

@@ -10,7 +10,10 @@ T_f opposes motion: the kernel returns -T_f as its torque on the shaft. z is the
 
 Fixed-step update of z (``advance``): for the velocity of the step frozen, dz/dt = omega - a*z with
 a = sigma0*|omega|/g is linear in z and is solved exactly, z <- z_ss + (z - z_ss)*exp(-a*h) with
-z_ss = omega/a, so the stiff bristle state stays bounded at any speed and any step.
+z_ss = omega/a, so the stiff bristle state stays bounded at any speed and any step. LuGre's g(omega) is
+its *carry* (components/base.py): the stepper evaluates it once per substep, at the new velocity, for the
+bristle update and for the next substep's kernel, which sees that same velocity (the same bits as
+evaluating it in both).
 """
 from __future__ import annotations
 
@@ -122,18 +125,22 @@ def stribeck_curve(omega, Tc, Ts, ws):
 
 
 @kernel
-def lugre_friction_kernel(t, phi, omega, i, u, s, p, ds):
-    # p = [T_c, T_s, omega_s, sigma0, sigma1, sigma2]
+def lugre_stribeck(phi, omega, i, p):
+    """The carried value of LuGre (components/base.py): g(omega), which the kernel and the advance share."""
+    return stribeck_curve(omega, p[0], p[1], p[2])
+
+
+@kernel
+def lugre_friction_kernel(t, phi, omega, i, u, s, p, ds, g):
+    # p = [T_c, T_s, omega_s, sigma0, sigma1, sigma2]; g = lugre_stribeck(phi, omega, i, p)
     z = s[0]
-    g = stribeck_curve(omega, p[0], p[1], p[2])
     dz = omega - p[3] * abs(omega) * z / g
     ds[0] = dz
     return -(p[3] * z + p[4] * dz + p[5] * omega), 0.0, 0.0
 
 
 @kernel
-def lugre_friction_advance(h, t, phi, omega, i, u, s, p):
-    g = stribeck_curve(omega, p[0], p[1], p[2])
+def lugre_friction_advance(h, t, phi, omega, i, u, s, p, g):
     s[0] = bristle_advance(s[0], omega, h, p[3], g)
 
 
@@ -145,6 +152,7 @@ class LuGreFriction(Component):
     state_units = ("rad",)
     kernel = staticmethod(lugre_friction_kernel)
     advance = staticmethod(lugre_friction_advance)
+    carry = staticmethod(lugre_stribeck)     # g(omega), computed once per substep (components/base.py)
     description = "3: LuGre friction (sec. 5.3, eqs. 26-28)"
 
     def rest_state(self, s, held_torque_Nm):
