@@ -37,6 +37,17 @@ def test_quick_proof_names_the_concealed_effects_and_claims_nothing_on_clean_dat
     assert by["shaft_flux_loss"]["rms_after"] < 0.5 * by["shaft_flux_loss"]["rms_before"]
 
 
+def test_quick_proof_names_an_electrical_and_a_friction_effect_with_their_parameters():
+    """Two more families (electrical, friction) against a library that also holds their rivals."""
+    rows, _ = _prove().main(["--quick", "--families", "coil_heating", "angle_dependent_friction", "--duration", "3",
+                             "--jobs", "1", "--candidates", "coil_heating", "angle_dependent_friction",
+                             "shaft_flux_loss", "sensor_offset_gain", "stribeck_friction"])
+    for r in rows:
+        assert r["effects"][:1] == [r["family"]], r
+        assert r["param_rel_err"] < 0.10 and r["rms_after"] < 0.2 * r["rms_before"], r
+        assert r["heldout_rms_after"] < 0.5 * r["heldout_rms_before"], r
+
+
 def test_cli_writes_contract_report_and_loadable_plant(tmp_path, capsys):
     truth = make_plant("3B", substeps=40, effects=[fx.ShaftFluxLoss(loss_at_open_Nm_per_A=0.03, exponent=3.0)])
     rec = make_recording(truth, np.random.default_rng(3), duration_s=3.0, name="rig.csv")
