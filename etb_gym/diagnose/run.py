@@ -93,9 +93,15 @@ def choose_substeps(base: Plant, data: Data, choices=SUBSTEP_CHOICES, frac: floa
     fitted at too coarse a step has an integration error that looks like missing physics: false alarms.)"""
     spec = Spec(base)
     plant, sensor = spec.build(spec.x0())
+    sims = {}                       # each step simulated once: 2n of one try is n of the next
+
+    def sim(n):
+        if n not in sims:
+            sims[n] = simulate(plant.replace(substeps=n), sensor, data)
+        return sims[n]
+
     for n in choices[:-1]:
-        a = simulate(plant.replace(substeps=n), sensor, data)
-        b = simulate(plant.replace(substeps=2 * n), sensor, data)
+        a, b = sim(n), sim(2 * n)
         if a is None or b is None:
             continue
         d = np.concatenate([pa[0] - pb[0] for pa, pb in zip(a, b)])
