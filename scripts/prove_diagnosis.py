@@ -229,6 +229,7 @@ def run_case(family, seed, args, workdir):
             row["param"] = pname
             row["param_true"] = ptrue
             row["param_fit"] = v
+            row["param_stderr"] = se
             row["param_rel_err"] = abs(v - ptrue) / abs(ptrue)
             row["param_covered"] = bool(se is not None and abs(v - ptrue) <= 1.645 * se)
     # held-out recording with the other excitation: nominal-calibrated vs final model
@@ -327,6 +328,26 @@ def _atomic(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
+DOCS = {"docs/diagnosis.md": ("targets", "families"), "README.md": ("targets",)}
+
+
+def update_docs(root: Path, blocks: dict) -> list:
+    """Replace the text between ``<!-- proof:NAME -->`` and ``<!-- /proof:NAME -->`` in the files of DOCS."""
+    import re
+    changed = []
+    for rel, names in DOCS.items():
+        path = root / rel
+        text = path.read_text()
+        for name in names:
+            pat = re.compile(rf"(<!-- proof:{name} -->\n).*?(\n<!-- /proof:{name} -->)", re.S)
+            if not pat.search(text):
+                raise SystemExit(f"{path}: markers <!-- proof:{name} --> ... <!-- /proof:{name} --> not found")
+            text = pat.sub(lambda m: m.group(1) + blocks[name] + m.group(2), text)
+        _atomic(path, text)
+        changed.append(str(path))
+    return changed
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog=__doc__.split("\n", 2)[2])
@@ -344,6 +365,8 @@ def main(argv=None):
                     "example figures here")
     ap.add_argument("--resume", action="store_true", help="continue the proof in --out (skips finished runs)")
     ap.add_argument("--summarize", action="store_true", help="only rebuild proof.md/proof.json from --out's rows")
+    ap.add_argument("--update-docs", action="store_true",
+                    help="also write the tables into docs/diagnosis.md and README.md (between <!-- proof:... --> markers)")
     a = ap.parse_args(argv)
     if a.quick:
         a.families = a.families or QUICK
@@ -396,6 +419,9 @@ def main(argv=None):
     if out:
         _atomic(out / "proof.json", json.dumps({"rows": rows, "families": fam, "args": vars(a)}, indent=1, default=float))
         _atomic(out / "proof.md", txt + "\n")
+    if a.update_docs:
+        for f in update_docs(Path(__file__).resolve().parents[1], {"targets": targets(rows), "families": table(fam)}):
+            print(f"updated {f}")
     return rows, fam
 
 

@@ -2,9 +2,13 @@
 
     minimize  sum_k r_k(x)^2,   r = (simulated reading - recorded reading) / noise floor  [+ current]
 
-Uncertainty: cov(x) = s^2 (J^T J)^-1 * tau_int with s^2 = sum r^2 / (m - p) the residual variance and
-tau_int the integrated autocorrelation time of the residual (correlated residuals carry fewer independent
-samples than m; for white residuals tau_int = 1).
+Uncertainty: the larger, per parameter, of two covariance estimates
+    model-based   cov_m = s^2 (J^T J)^-1 * tau_int,  s^2 = sum r^2 / (m - p) the residual variance and
+                  tau_int the integrated autocorrelation time of the residual (correlated residuals carry
+                  fewer independent samples than m; for white residuals tau_int = 1)
+    block-robust  cov_b = G/(G-1) (J^T J)^-1 [sum_b g_b g_b^T] (J^T J)^-1,  g_b = J_b^T r_b summed over the
+                  G time blocks of BLOCK_S (a cluster-robust sandwich: residual correlation within a
+                  block and structure the model leaves out, which the model-based estimate assumes away)
 
 Scores: BIC = m_eff ln(RSS/m) + p ln(m_eff),  m_eff = m / tau_int.
 Cross-validation: samples in alternating time blocks form two folds; each fold's parameters are fitted
@@ -19,10 +23,11 @@ import warnings
 import numpy as np
 from scipy.optimize import least_squares
 
-from .model import Data, Spec, residuals, simulate
+from .model import Data, Spec, residual_blocks, residuals, simulate
 
 FAIL = 1e3
 FOLD_BLOCK_S = 0.5
+BLOCK_S = 0.5        # time blocks of the block-robust covariance
 
 
 @dataclasses.dataclass
@@ -34,6 +39,7 @@ class FitResult:
     jac: np.ndarray | None
     nfev: int
     tau_int: float = 1.0
+    block_scores: np.ndarray | None = None     # G x p: sum of J_k r_k over each time block (BLOCK_S)
 
     @property
     def values(self) -> dict:
@@ -48,10 +54,16 @@ class FitResult:
         s2 = self.rss / max(self.m - p, 1)
         JtJ = J.T @ J
         try:
-            cov = np.linalg.pinv(JtJ, rcond=1e-10) * s2 * self.tau_int
+            H = np.linalg.pinv(JtJ, rcond=1e-10)
         except np.linalg.LinAlgError:
             return {n: math.inf for n in self.spec.names}
-        d = np.sqrt(np.clip(np.diag(cov), 0, None))
+        var = np.clip(np.diag(H) * s2 * self.tau_int, 0, None)
+        G = 0 if self.block_scores is None else self.block_scores.shape[0]
+        if G >= 2:
+            S = self.block_scores
+            cov_b = H @ (S.T @ S) @ H * (G / (G - 1))
+            var = np.maximum(var, np.clip(np.diag(cov_b), 0, None))
+        d = np.sqrt(var)
         d[np.diag(JtJ) <= 1e-12 * max(1.0, float(np.max(np.diag(JtJ))))] = math.inf
         return {n: float(pp.scale * v) for n, (_, pp), v in zip(self.spec.names, self.spec.params, d)}
 
@@ -125,7 +137,19 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
     res = least_squares(fun, x0, bounds=(lo, hi), method="trf", diff_step=diff_step, x_scale=1.0,
                         max_nfev=max_nfev or 30 * (len(x0) + 1), ftol=1e-6, xtol=1e-6, gtol=1e-8)
     r = res.fun
-    return FitResult(spec, res.x, float(r @ r), r.size, res.jac, int(res.nfev), integrated_time(r))
+    return FitResult(spec, res.x, float(r @ r), r.size, res.jac, int(res.nfev), integrated_time(r),
+                     block_scores(res.jac, r, residual_blocks(data, BLOCK_S, masks)))
+
+
+def block_scores(J: np.ndarray, r: np.ndarray, blocks: np.ndarray) -> np.ndarray | None:
+    """G x p matrix of the score J_k r_k summed over each block (``blocks``: block index per residual)."""
+    J = np.asarray(J)
+    if J.ndim != 2 or blocks.size != r.size or J.shape[0] != r.size:
+        return None
+    _, inv = np.unique(blocks, return_inverse=True)
+    out = np.zeros((int(inv.max()) + 1, J.shape[1]))
+    np.add.at(out, inv, J * r[:, None])
+    return out
 
 
 def evaluate(spec: Spec, data: Data, x, masks=None, with_current: bool = True) -> np.ndarray:

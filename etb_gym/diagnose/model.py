@@ -209,5 +209,21 @@ def residuals(pred, data: Data, masks=None, with_current=True) -> np.ndarray:
     return np.concatenate(parts)
 
 
+def residual_blocks(data: Data, block_s: float, masks=None, with_current=True) -> np.ndarray:
+    """Block index of every element of :func:`residuals` (same layout): consecutive time blocks of
+    ``block_s`` per recording; a sample's angle and current residuals share their block."""
+    parts = []
+    first = 0
+    for k, rd in enumerate(data.recs):
+        t = rd.rec.t_s
+        b = first + np.floor((t - t[0]) / block_s).astype(np.int64)
+        first = int(b[-1]) + 1
+        m = slice(None) if masks is None else masks[k]
+        parts.append(b[m])
+        if with_current and rd.rec.current_A is not None and data.current_weight > 0:
+            parts.append(b[m])
+    return np.concatenate(parts)
+
+
 def angle_residuals_deg(pred, data: Data) -> list[np.ndarray]:
     return [pred[k][0] - rd.rec.angle_deg for k, rd in enumerate(data.recs)]
