@@ -181,58 +181,59 @@ def effect_footprint(truth, rec, effects, sensor_kw):
     return sm.apply(rec.t_s, phi, quantize=True), phi
 
 
-def run_case(family, seed, args, workdir):
-    rng = np.random.default_rng(10_000 * (FAMILIES.index(family) + 1) + seed)
-    scale = rng.uniform(0.0, 1.0)
-    effects, sensor_kw, pname, ptrue = truth_for(family, rng, scale)
-    truth = truth_plant(rng, effects, substeps=args.truth_substeps)
+def record_and_diagnose(name, seed, rng, truth, sensor_kw, args, workdir):
+    """The case's recording and held-out recording of ``truth`` (loop, noise level and colour from the seed),
+    the diagnosis of the recording's file, and the row's common fields."""
     closed = seed % 2 == 1                      # seeds cycle open/closed loop, then noise level, then colour:
     noise = [0.01, 0.03][(seed // 2) % 2]       # any 4 consecutive seeds cover both loops and both levels
     colour = 0.5 if (seed // 4) % 2 else 0.0
     kw = dict(noise_deg=noise, colour=colour, **sensor_kw)
     rec_seed = int(rng.integers(1 << 30))
     rec = make_recording(truth, np.random.default_rng(rec_seed), duration_s=args.duration, closed=closed,
-                         name=f"{family}_{seed}.csv", **kw)
+                         name=f"{name}_{seed}.csv", **kw)
     held = make_recording(truth, np.random.default_rng(rec_seed + 1), duration_s=args.duration, closed=not closed,
-                          name=f"{family}_{seed}_heldout.csv", **kw)
+                          name=f"{name}_{seed}_heldout.csv", **kw)
     path = Path(workdir) / rec.name
     save_recording(rec, path)
-    out = Path(workdir) / f"out_{family}_{seed}"
+    out = Path(workdir) / f"out_{name}_{seed}"
     t0 = time.perf_counter()
     opts = Options(model="3B", jobs=args.jobs, progress=False, verbose=False, max_effects=args.max_effects,
                    candidates=tuple(args.candidates) if args.candidates else Options().candidates)
     res = diagnose([path], out=out, options=opts)
     elapsed = time.perf_counter() - t0
     rep = res.report
-    ids = [e["id"] for e in rep["effects"]]
-    row = {"family": family, "seed": seed, "scale": scale, "noise_deg": noise, "colour": colour, "closed": closed,
-           "verdict": rep["verdict"], "effects": ids, "rms_before": rep["rms_before_deg"],
+    row = {"seed": seed, "noise_deg": noise, "colour": colour, "closed": closed,
+           "verdict": rep["verdict"], "effects": [e["id"] for e in rep["effects"]], "rms_before": rep["rms_before_deg"],
            "rms_after": rep["rms_after_deg"], "noise_floor": rep["noise_floor_deg"], "time_s": elapsed}
-    row["named"] = (not ids) if family == "clean" else (bool(ids) and ids[0] == family)
-    # where the concealed effect acts: truth with vs without it, in the reading (deg)
     q = sensor_kw.get("resolution_deg", 90.0 / 4096)
-    true_noise = math.sqrt(noise ** 2 + q ** 2 / 12.0)                 # what the truth added (incl. quantization)
-    row["true_noise"] = true_noise
-    if family != "clean":
-        with_, without = effect_footprint(truth, rec, effects, sensor_kw)
-        d = with_ - without
-        row["effect_size"] = float(np.max(moving_rms(d, int(0.1 / rec.dt_s)))) / true_noise
-        row["effect_rms"] = float(np.sqrt(np.mean(d ** 2)))
-        tw = truth_windows(rec.t_s, with_, without, true_noise, rec.dt_s)
-        rw = rep["mismatch_windows_s"][rec.name]
-        row["win_precision"] = overlap(rw, tw) / length(rw) if length(rw) > 0 else (1.0 if not tw else 0.0)
-        row["win_recall"] = overlap(rw, tw) / length(tw) if length(tw) > 0 else 1.0
-    if pname and row["named"]:
-        e = rep["effects"][0]["parameters"]
-        if pname in e:
-            v, se = e[pname]["value"], e[pname]["stderr"]
-            row["param"] = pname
-            row["param_true"] = ptrue
-            row["param_fit"] = v
-            row["param_stderr"] = se
-            row["param_rel_err"] = abs(v - ptrue) / abs(ptrue)
-            row["param_covered"] = bool(se is not None and abs(v - ptrue) <= 1.645 * se)
-    # held-out recording with the other excitation: nominal-calibrated vs final model
+    row["true_noise"] = math.sqrt(noise ** 2 + q ** 2 / 12.0)        # what the truth added (incl. quantization)
+    return rec, held, res, row, out
+
+
+def score_windows(row, rec, rep, with_, without):
+    """Effect size and window precision / recall against where (with - without) exceeds 3x the noise."""
+    d = with_ - without
+    row["effect_size"] = float(np.max(moving_rms(d, int(0.1 / rec.dt_s)))) / row["true_noise"]
+    row["effect_rms"] = float(np.sqrt(np.mean(d ** 2)))
+    tw = truth_windows(rec.t_s, with_, without, row["true_noise"], rec.dt_s)
+    rw = rep["mismatch_windows_s"][rec.name]
+    row["win_precision"] = overlap(rw, tw) / length(rw) if length(rw) > 0 else (1.0 if not tw else 0.0)
+    row["win_recall"] = overlap(rw, tw) / length(tw) if length(tw) > 0 else 1.0
+
+
+def score_param(rep, fid, pname, ptrue):
+    """The fitted main parameter of effect ``fid`` against the truth (None if the effect was not reported)."""
+    for e in rep["effects"]:
+        if e["id"] == fid and pname in e["parameters"]:
+            v, se = e["parameters"][pname]["value"], e["parameters"][pname]["stderr"]
+            return {"param": pname, "param_true": ptrue, "param_fit": v, "param_stderr": se,
+                    "param_rel_err": abs(v - ptrue) / abs(ptrue),
+                    "param_covered": bool(se is not None and abs(v - ptrue) <= 1.645 * se)}
+    return None
+
+
+def score_heldout(row, res, held):
+    """RMS on the held-out recording (other excitation): calibrated nominal vs final model."""
     hd = prepare([held], 12.0)
     nom_plant, nom_sensor = res.nominal_fit.spec.build(res.nominal_fit.x)
     r0 = angle_residuals_deg(simulate(nom_plant, nom_sensor, hd), hd)[0]
@@ -240,6 +241,73 @@ def run_case(family, seed, args, workdir):
     row["heldout_rms_before"] = float(np.sqrt(np.mean(r0 ** 2)))
     row["heldout_rms_after"] = float(np.sqrt(np.mean(r1 ** 2)))
     row["heldout_noise"] = hd.recs[0].noise_deg                     # the tool's estimate from the held-out file
+
+
+def run_case(family, seed, args, workdir):
+    if family.startswith("pair:"):
+        return run_pair(family[5:], seed, args, workdir)
+    rng = np.random.default_rng(10_000 * (FAMILIES.index(family) + 1) + seed)
+    scale = rng.uniform(0.0, 1.0)
+    effects, sensor_kw, pname, ptrue = truth_for(family, rng, scale)
+    truth = truth_plant(rng, effects, substeps=args.truth_substeps)
+    rec, held, res, row, out = record_and_diagnose(family, seed, rng, truth, sensor_kw, args, workdir)
+    rep = res.report
+    ids = row["effects"]
+    row = {"family": family, "seed": seed, "scale": scale, **row}
+    row["named"] = (not ids) if family == "clean" else (bool(ids) and ids[0] == family)
+    if family != "clean":                   # where the concealed effect acts: truth with vs without it (deg)
+        score_windows(row, rec, rep, *effect_footprint(truth, rec, effects, sensor_kw))
+    if pname and row["named"]:
+        row.update(score_param(rep, family, pname, ptrue) or {})
+    score_heldout(row, res, held)
+    return row, out
+
+
+# ---------------------------------------------------------------- two concealed effects at once
+PAIRS = ["shaft_flux_loss+coil_heating", "angle_dependent_friction+supply_drop", "sensor_delay+torque_constant_error"]
+
+
+def sensor_model(sensor_kw, dt_s) -> SensorModel:
+    return SensorModel(offset_deg=sensor_kw.get("offset_deg", 0.0), gain=sensor_kw.get("gain", 1.0),
+                       delay_s=sensor_kw.get("delay_steps", 0) * dt_s)
+
+
+def pair_footprints(truth, rec, parts, sensor_kw):
+    """Reading with both effects, reading with neither, and per effect (reading with both - reading without
+    that one), all by the segment-wise simulation of the truth (deg)."""
+    data = prepare([rec], 12.0)
+    sim = lambda effects, kw: simulate(truth.replace(effects=tuple(effects)), sensor_model(kw, rec.dt_s), data)[0][0]
+    both = sim(truth.effects, sensor_kw)
+    each = []
+    for _, _, fx_k, kw_k, _, _ in parts:
+        rest = [e for e in truth.effects if all(e is not f for f in fx_k)]
+        each.append(both - sim(rest, {k: v for k, v in sensor_kw.items() if k not in kw_k}))
+    return both, sim((), {}), each
+
+
+def run_pair(pair, seed, args, workdir):
+    """Two families concealed at once, each at a moderate to large magnitude. Named: both reported (either
+    order); detectable: each moves the reading by >= DETECTABLE x the noise on its own."""
+    fams = pair.split("+")
+    rng = np.random.default_rng(10_000 * (100 + PAIRS.index(pair)) + seed)
+    parts = []
+    for f in fams:
+        scale = rng.uniform(0.3, 1.0)
+        parts.append((f, scale) + tuple(truth_for(f, rng, scale)))
+    effects = [e for p in parts for e in p[2]]
+    sensor_kw = {k: v for p in parts for k, v in p[3].items()}
+    truth = truth_plant(rng, effects, substeps=args.truth_substeps)
+    rec, held, res, row, out = record_and_diagnose("pair_" + "_".join(fams), seed, rng, truth, sensor_kw, args, workdir)
+    rep = res.report
+    ids = row["effects"]
+    row = {"family": "pair:" + pair, "seed": seed, "scales": [p[1] for p in parts], **row}
+    row["named"] = set(ids[:2]) == set(fams)
+    row["named_first"] = bool(ids) and ids[0] in fams
+    both, neither, each = pair_footprints(truth, rec, parts, sensor_kw)
+    score_windows(row, rec, rep, both, neither)
+    row["effect_sizes"] = [float(np.max(moving_rms(d, int(0.1 / rec.dt_s)))) / row["true_noise"] for d in each]
+    row["params"] = [dict(family=f, **(score_param(rep, f, pn, pt) or {})) for f, _, _, _, pn, pt in parts if pn]
+    score_heldout(row, res, held)
     return row, out
 
 
@@ -298,8 +366,34 @@ def _frac(xs) -> str:
     return f"{sum(xs)}/{len(xs)} ({sum(xs) / len(xs):.0%})" if xs else "-"
 
 
+def pair_table(rows) -> str:
+    """Runs with two concealed effects, per pair (Markdown; empty if there are none)."""
+    L = []
+    for pair in PAIRS:
+        rs = [r for r in rows if r["family"] == "pair:" + pair]
+        if not rs:
+            continue
+        det = [r for r in rs if min(r["effect_sizes"]) >= DETECTABLE]
+        ps = [p for r in rs for p in r["params"] if "param_rel_err" in p]
+        L.append(f"| {pair.replace('+', ' + ')} | {len(rs)} ({len(det)}) | {_frac(r['named'] for r in det)} | "
+                 f"{_frac(r['named_first'] for r in det)} | "
+                 f"{np.median([r['rms_before'] for r in rs]):.4f} / {np.median([r['rms_after'] for r in rs]):.4f} | "
+                 f"{_frac(r['heldout_rms_after'] <= 0.5 * r['heldout_rms_before'] for r in det)} | "
+                 f"{np.median([r['heldout_rms_after'] / r['true_noise'] for r in det or rs]):.2f} | "
+                 f"{np.mean([r['win_precision'] for r in det or rs]):.2f} / {np.mean([r['win_recall'] for r in det or rs]):.2f} | "
+                 + (f"{np.median([p['param_rel_err'] for p in ps]):.1%} | {_frac(p['param_covered'] for p in ps)} | " if ps else "- | - | ")
+                 + f"{np.median([r['time_s'] for r in rs]):.0f} |")
+    if not L:
+        return ""
+    return "\n".join(["| pair | runs (both detectable) | both named (detectable) | one of them named first | "
+                      "RMS before / after [deg] | held-out RMS falls >= 50 % | held-out after / noise | windows P / R | "
+                      "param median rel. err (both) | 90 % coverage | time [s] |",
+                      "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"] + L)
+
+
 def targets(rows) -> str:
-    """The issue's targets against what the rows measured (Markdown)."""
+    """The issue's targets against what the single-effect rows measured (Markdown)."""
+    rows = [r for r in rows if not r["family"].startswith("pair:")]
     det = [r for r in rows if r["family"] != "clean" and
            (r["family"] == "sensor_quantization" or r.get("effect_size", 0.0) >= DETECTABLE)]
     clean = [r for r in rows if r["family"] == "clean"]
@@ -328,7 +422,7 @@ def _atomic(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-DOCS = {"docs/diagnosis.md": ("targets", "families"), "README.md": ("targets",)}
+DOCS = {"docs/diagnosis.md": ("targets", "families", "pairs"), "README.md": ("targets",)}
 
 
 def update_docs(root: Path, blocks: dict) -> list:
@@ -353,6 +447,8 @@ def main(argv=None):
                                  epilog=__doc__.split("\n", 2)[2])
     ap.add_argument("--quick", action="store_true", help=f"families {QUICK}, 1 seed, 4 s recordings, small library")
     ap.add_argument("--families", nargs="+", choices=FAMILIES, default=None)
+    ap.add_argument("--pairs", nargs="*", choices=PAIRS, default=None, metavar="PAIR",
+                    help=f"run two-effect cases: these, or all of {PAIRS} if none is named (with --families: as well)")
     ap.add_argument("--seeds", type=int, default=20, help="seeds per family (default 20)")
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--duration", type=float, default=10.0, help="recording length [s] (default 10)")
@@ -374,7 +470,9 @@ def main(argv=None):
         a.duration = min(a.duration, 4.0)
         a.candidates = a.candidates or ["shaft_flux_loss", "spring_asymmetry", "sensor_offset_gain", "airflow_torque",
                                         "stribeck_friction"]
-    fams = a.families or FAMILIES
+    fams = a.families or ([] if a.pairs is not None else FAMILIES)
+    if a.pairs is not None:
+        fams = list(fams) + ["pair:" + p for p in (a.pairs or PAIRS)]
     out = Path(a.out) if a.out else None
     rows_file = out / "rows.jsonl" if out else None
     rows = []
@@ -404,14 +502,15 @@ def main(argv=None):
             bar.update(1)
             if out and s == a.first_seed:
                 import shutil
-                dst = out / f"example_{f}"
+                dst = out / ("example_" + f.replace("pair:", "pair_").replace("+", "_"))
                 dst.mkdir(parents=True, exist_ok=True)
                 for fn in ("residual_time.png", "residual_regimes.png", "angle_fit.png", "report.json", "report.md"):
                     if (outdir / fn).exists():
                         shutil.copy(outdir / fn, dst / fn)
         bar.close()
     fam = summarize(rows)
-    txt = table(fam) + "\n\n" + targets(rows)
+    pairs = pair_table(rows)
+    txt = table(fam) + "\n\n" + targets(rows) + ("\n\n" + pairs if pairs else "")
     print(txt)
     if rows:
         total_time = [r["time_s"] for r in rows]
@@ -420,7 +519,8 @@ def main(argv=None):
         _atomic(out / "proof.json", json.dumps({"rows": rows, "families": fam, "args": vars(a)}, indent=1, default=float))
         _atomic(out / "proof.md", txt + "\n")
     if a.update_docs:
-        for f in update_docs(Path(__file__).resolve().parents[1], {"targets": targets(rows), "families": table(fam)}):
+        for f in update_docs(Path(__file__).resolve().parents[1], {"targets": targets(rows), "families": table(fam),
+                                                                  "pairs": pairs or "(no two-effect runs)"}):
             print(f"updated {f}")
     return rows, fam
 

@@ -161,3 +161,15 @@ def test_block_robust_stderr_covers_the_truth_under_correlated_residuals():
     # white residuals: both estimates agree and cover
     naive_w, robust_w, _ = _regression_coverage(rho=0.0, reps=150, seed=1)
     assert naive_w >= 0.8 * 0.9 ** p and robust_w >= 0.8 * 0.9 ** p
+
+
+def test_proof_finds_two_concealed_effects_at_once():
+    """Shaft flux loss and coil heating concealed together: selection iterates and names both, with their
+    parameters, against a library that also holds their electrical rivals."""
+    rows, _ = _prove().main(["--pairs", "shaft_flux_loss+coil_heating", "--seeds", "1", "--duration", "4",
+                             "--jobs", "1", "--candidates", "shaft_flux_loss", "coil_heating",
+                             "torque_constant_error", "supply_drop", "sensor_offset_gain"])
+    (r,) = rows
+    assert r["named"] and min(r["effect_sizes"]) > 10, r
+    assert all(p["param_rel_err"] < 0.10 for p in r["params"]), r
+    assert r["rms_after"] < 0.1 * r["rms_before"] and r["heldout_rms_after"] < 0.5 * r["heldout_rms_before"], r
