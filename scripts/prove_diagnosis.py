@@ -164,6 +164,13 @@ def truth_windows(rec_t, ang_with, ang_without, sigma, dt):
     return out
 
 
+def sensor_model(sensor_kw, dt_s) -> SensorModel:
+    """The truth's sensor effects (``truth_for``'s sensor kwargs) as the diagnosis's SensorModel."""
+    return SensorModel(offset_deg=sensor_kw.get("offset_deg", 0.0), gain=sensor_kw.get("gain", 1.0),
+                       delay_s=sensor_kw.get("delay_steps", 0) * dt_s,
+                       resolution_deg=sensor_kw.get("resolution_deg", 0.0))
+
+
 def effect_footprint(truth, rec, effects, sensor_kw):
     """(reading with the concealed effect, reading without it) along ``rec`` [deg]. Plate effects: the
     segment-wise simulation of the truth with and without the effect (re-initialized where the tool
@@ -175,10 +182,7 @@ def effect_footprint(truth, rec, effects, sensor_kw):
         return simulate(truth, sm, data)[0][0], simulate(truth.replace(effects=()), sm, data)[0][0]
     duty = rec.voltage_V / truth.supply.voltage_V
     phi = truth.simulate(duty=duty[:-1], angle_deg=math.degrees(truth.limp_home_rad)).angle_deg
-    sm = SensorModel(offset_deg=sensor_kw.get("offset_deg", 0.0), gain=sensor_kw.get("gain", 1.0),
-                     delay_s=sensor_kw.get("delay_steps", 0) * rec.dt_s,
-                     resolution_deg=sensor_kw.get("resolution_deg", 0.0))
-    return sm.apply(rec.t_s, phi, quantize=True), phi
+    return sensor_model(sensor_kw, rec.dt_s).apply(rec.t_s, phi, quantize=True), phi
 
 
 def record_and_diagnose(name, seed, rng, truth, sensor_kw, args, workdir):
@@ -265,11 +269,6 @@ def run_case(family, seed, args, workdir):
 
 # ---------------------------------------------------------------- two concealed effects at once
 PAIRS = ["shaft_flux_loss+coil_heating", "angle_dependent_friction+supply_drop", "sensor_delay+torque_constant_error"]
-
-
-def sensor_model(sensor_kw, dt_s) -> SensorModel:
-    return SensorModel(offset_deg=sensor_kw.get("offset_deg", 0.0), gain=sensor_kw.get("gain", 1.0),
-                       delay_s=sensor_kw.get("delay_steps", 0) * dt_s)
 
 
 def pair_footprints(truth, rec, parts, sensor_kw):

@@ -97,7 +97,7 @@ def dbic(new: F.FitResult, old: F.FitResult) -> float:
 
 
 def angle_rms_ratio(new: F.FitResult, old: F.FitResult, data: Data) -> float:
-    """RMS angle residual of ``new`` over that of ``old``, on all the recorded samples."""
+    """RMS angle residual (in noise-floor units) of ``new`` over that of ``old``, on all recorded samples."""
     a = F.evaluate(new.spec, data, new.x, with_current=False)
     b = F.evaluate(old.spec, data, old.x, with_current=False)
     return math.sqrt(float(a @ a) / max(float(b @ b), 1e-300))

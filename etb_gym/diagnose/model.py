@@ -197,32 +197,34 @@ def simulate(plant: Plant, sensor: SensorModel, data: Data):
     return out
 
 
+def _layout(data: Data, masks, with_current):
+    """The order in which residuals are stacked: (recording index, its data, sample mask, "angle" or
+    "current") per part; :func:`residuals` and :func:`residual_blocks` both follow it."""
+    for k, rd in enumerate(data.recs):
+        m = slice(None) if masks is None else masks[k]
+        yield k, rd, m, "angle"
+        if with_current and rd.rec.current_A is not None and data.current_weight > 0:
+            yield k, rd, m, "current"
+
+
 def residuals(pred, data: Data, masks=None, with_current=True) -> np.ndarray:
     """Stacked normalized residuals (angle / noise floor, current weighted); masks select samples."""
     parts = []
-    for k, rd in enumerate(data.recs):
+    for k, rd, m, kind in _layout(data, masks, with_current):
         ang, cur = pred[k]
-        m = slice(None) if masks is None else masks[k]
-        parts.append((ang[m] - rd.rec.angle_deg[m]) / rd.noise_deg)
-        if with_current and rd.rec.current_A is not None and data.current_weight > 0:
+        if kind == "angle":
+            parts.append((ang[m] - rd.rec.angle_deg[m]) / rd.noise_deg)
+        else:
             parts.append(data.current_weight * (cur[m] - rd.rec.current_A[m]) / rd.current_sigma_A)
     return np.concatenate(parts)
 
 
 def residual_blocks(data: Data, block_s: float, masks=None, with_current=True) -> np.ndarray:
-    """Block index of every element of :func:`residuals` (same layout): consecutive time blocks of
-    ``block_s`` per recording; a sample's angle and current residuals share their block."""
-    parts = []
-    first = 0
-    for k, rd in enumerate(data.recs):
-        t = rd.rec.t_s
-        b = first + np.floor((t - t[0]) / block_s).astype(np.int64)
-        first = int(b[-1]) + 1
-        m = slice(None) if masks is None else masks[k]
-        parts.append(b[m])
-        if with_current and rd.rec.current_A is not None and data.current_weight > 0:
-            parts.append(b[m])
-    return np.concatenate(parts)
+    """Block index of every element of :func:`residuals`: consecutive time blocks of ``block_s``, numbered
+    across the recordings; a sample's angle and current residuals share their block."""
+    first = np.cumsum([0] + [int((rd.rec.t_s[-1] - rd.rec.t_s[0]) // block_s) + 1 for rd in data.recs])
+    return np.concatenate([first[k] + np.floor((rd.rec.t_s[m] - rd.rec.t_s[0]) / block_s).astype(np.int64)
+                           for k, rd, m, _ in _layout(data, masks, with_current)])
 
 
 def angle_residuals_deg(pred, data: Data) -> list[np.ndarray]:
