@@ -11,14 +11,14 @@ Targets (issue 4), checked on the nominal variant for every controller, and acro
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-from .benchmark import SCENARIOS, SMALL_STEP_SCENARIOS, VARIANTS, Job, _publish, load_trace
+from .io import write_atomic
+
+from .benchmark import SCENARIOS, SMALL_STEP_SCENARIOS, VARIANTS, Job, load_trace
 
 TABLE_COLUMNS = (("settling_time_s", "settle [ms]", 1e3), ("rise_time_s", "rise [ms]", 1e3),
                  ("overshoot_pct", "overshoot [%]", 1.0), ("steady_state_error_deg", "SSE [deg]", 1.0),
@@ -148,12 +148,7 @@ def markdown(rows, title="Controller benchmark") -> str:
 
 
 def write_text(path, text: str) -> None:
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    _publish(tmp, p)
+    write_atomic(path, text)
 
 
 def plot_scenarios(out_dir, rows, env_id=None, seed=None, variant="nominal") -> list[Path]:
@@ -201,10 +196,9 @@ def plot_scenarios(out_dir, rows, env_id=None, seed=None, variant="nominal") -> 
             ax2.grid(alpha=0.3)
             fig.tight_layout()
             p = out / f"response_{env}_{s}.png"
-            fd, tmp = tempfile.mkstemp(dir=out, suffix=".png")
-            os.close(fd)
-            fig.savefig(tmp, dpi=90, format="png")
-            plt.close(fig)
-            _publish(tmp, p)
+            try:
+                write_atomic(p, lambda fh: fig.savefig(fh, dpi=90, format="png"))
+            finally:
+                plt.close(fig)
             files.append(p)
     return files

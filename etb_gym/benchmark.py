@@ -22,14 +22,16 @@ control) before the step/ramp/profile; step metrics are measured from the step o
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Mapping
 
 import numpy as np
+
+from .io import write_atomic
 
 HOLD_S = 0.3
 TAIL_S = 0.1
@@ -261,12 +263,7 @@ def run_job(job: Job, want_trace: bool = False):
 
 
 def save_trace(trace_dir, job: Job, trace: Mapping) -> None:
-    p = Path(trace_dir) / trace_name(job)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=p.parent, suffix=".npz.tmp")
-    with os.fdopen(fd, "wb") as fh:
-        np.savez_compressed(fh, **trace)
-    _publish(tmp, p)
+    write_atomic(Path(trace_dir) / trace_name(job), lambda fh: np.savez_compressed(fh, **trace))
 
 
 def load_trace(trace_dir, job: Job):
@@ -308,16 +305,13 @@ def _parse_row(r):
 
 def write_results(path, rows: list[dict]) -> None:
     """Write all rows atomically (tmp file + os.replace), sorted by key for a stable file."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
     rows = sorted(rows, key=lambda r: (r["env"], r["controller"], r["scenario"], r["variant"], int(r["seed"])))
-    fd, tmp = tempfile.mkstemp(dir=p.parent, suffix=".csv.tmp")
-    with os.fdopen(fd, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=CSV_COLUMNS)
-        w.writeheader()
-        for r in rows:
-            w.writerow({c: _fmt(r[c]) for c in CSV_COLUMNS})
-    _publish(tmp, p)
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=CSV_COLUMNS)
+    w.writeheader()
+    for r in rows:
+        w.writerow({c: _fmt(r[c]) for c in CSV_COLUMNS})
+    write_atomic(path, buf.getvalue())
 
 
 def _fmt(v):
@@ -326,14 +320,6 @@ def _fmt(v):
     if isinstance(v, float):
         return "" if math.isnan(v) else f"{v:.6g}"
     return v
-
-
-def _publish(tmp, path) -> None:
-    """Give a finished temporary file the usual permissions (mkstemp makes it 0600) and move it in place."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    os.replace(tmp, path)
 
 
 def row_key(r) -> tuple:

@@ -47,7 +47,6 @@ import inspect
 import math
 import os
 import sys
-import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -502,10 +501,8 @@ class Engine:
         d.mkdir(parents=True, exist_ok=True)
         path = d / f"etb_kernel_{digest}.py"
         if not path.exists():
-            fd, tmp = tempfile.mkstemp(dir=d, suffix=".tmp")
-            with os.fdopen(fd, "w") as fh:
-                fh.write(src)
-            os.replace(tmp, path)
+            from .io import write_atomic
+            write_atomic(path, src, fsync=False)
         modname = f"etb_gym_kernels.k_{digest}"
         if modname in sys.modules:
             mod = sys.modules[modname]

@@ -7,10 +7,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
+from .io import write_atomic
 from .plant import Plant
 
 
@@ -65,12 +64,7 @@ def save_plant(plant: Plant, path) -> Path:
         text = dumps_toml(d)
     else:
         raise ValueError(f"plant file {path}: expected a .toml or .json file name")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
-    return path
+    return write_atomic(path, text)
 
 
 def load_plant(path) -> Plant:

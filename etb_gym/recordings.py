@@ -18,11 +18,11 @@ import csv
 import dataclasses
 import io
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from .io import write_atomic
 
 FORMATS = (".csv", ".npz", ".mat")
 SAMPLING_TOLERANCE = 0.01      # relative deviation of a sample period from the median period
@@ -234,26 +234,16 @@ def save_recording(rec: Recording, path) -> Path:
     if ext not in FORMATS:
         raise ValueError(f"recording file {path}: expected one of {', '.join(FORMATS)}")
     cols = rec.columns()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp" + ext)
-    os.close(fd)
-    try:
-        if ext == ".csv":
-            keys = list(cols)
-            with open(tmp, "w", newline="") as fh:
-                w = csv.writer(fh)
-                w.writerow(keys)
-                for row in zip(*(cols[k] for k in keys)):
-                    w.writerow([repr(float(v)) for v in row])
-        elif ext == ".npz":
-            with open(tmp, "wb") as fh:
-                np.savez(fh, **cols)
-        else:
-            from scipy.io import savemat
+    if ext == ".csv":
+        keys = list(cols)
+        buf = io.StringIO(newline="")
+        w = csv.writer(buf)
+        w.writerow(keys)
+        for row in zip(*(cols[k] for k in keys)):
+            w.writerow([repr(float(v)) for v in row])
+        return write_atomic(path, buf.getvalue())
+    if ext == ".npz":
+        return write_atomic(path, lambda fh: np.savez(fh, **cols))
+    from scipy.io import savemat
 
-            savemat(tmp, {k: np.asarray(v, float) for k, v in cols.items()})
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
+    return write_atomic(path, lambda fh: savemat(fh, {k: np.asarray(v, float) for k, v in cols.items()}))

@@ -32,7 +32,6 @@ import math
 import os
 import shutil
 import signal
-import tempfile
 import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -40,6 +39,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .io import write_atomic
 from .rl_task import (FEATURE_NAMES, BaseControllers, PolicyFeatures, TaskConfig, TrainingVecEnv,  # noqa: F401
                       apply_residual,
                       feature_names)
@@ -215,24 +215,8 @@ def _accepts(cls, key):
     return key in inspect.signature(cls.__init__).parameters and key not in _NOT_HP
 
 
-def _umask() -> int:
-    m = os.umask(0)
-    os.umask(m)
-    return m
-
-
 def _atomic_bytes(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o666 & ~_umask())          # mkstemp creates 0600; give the usual file mode
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, data)
 
 
 def _atomic_json(path: Path, obj) -> None:
@@ -247,18 +231,7 @@ def _save_model(model, path: Path) -> None:
 
 def _save_pickle_of(save_fn, path: Path) -> None:
     """Run an SB3 ``save_*(file)`` into a temporary file, then move it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name + ".", suffix=".tmp")
-    os.close(fd)
-    try:
-        with open(tmp, "wb") as fh:
-            save_fn(fh)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, save_fn)
 
 
 def versions() -> dict:

@@ -268,11 +268,8 @@ def fmt_rate(v):
 
 
 def atomic_write(path: Path, text: str):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
+    from etb_gym.io import write_atomic
+    write_atomic(path, text)
 
 
 def progress(total, desc):

@@ -9,20 +9,15 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 
 def _save(fig, path: Path):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".png")
-    os.close(fd)
-    fig.savefig(tmp, dpi=90, format="png")
-    os.replace(tmp, path)
+    from etb_gym.io import write_atomic
+    write_atomic(path, lambda fh: fig.savefig(fh, dpi=90, format="png"))
 
 
 def main(argv=None) -> int:

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import tempfile
 import time
@@ -40,6 +39,7 @@ from etb_gym.diagnose.locate import moving_rms
 from etb_gym.diagnose.measurement import SensorModel
 from etb_gym.diagnose.model import angle_residuals_deg, prepare, simulate
 from etb_gym.diagnose.synthetic import make_recording
+from etb_gym.io import write_atomic
 from etb_gym.jit import kernel
 from etb_gym.recordings import save_recording
 import dataclasses
@@ -416,9 +416,7 @@ def targets(rows) -> str:
 
 
 def _atomic(path: Path, text: str) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    write_atomic(path, text)
 
 
 DOCS = {"docs/diagnosis.md": ("targets", "families", "pairs"), "README.md": ("targets",)}

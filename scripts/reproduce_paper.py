@@ -24,10 +24,8 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import re
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,14 +36,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from etb_gym import Plant, make_plant  # noqa: E402
+from etb_gym.io import write_atomic  # noqa: E402
 from etb_gym.components import EndStops, FluxDrive, LinearDrive, NonlinearInductanceDrive  # noqa: E402
 
 DRIVE_COLORS = {"A": "tab:blue", "B": "tab:orange", "C": "tab:green"}
 VOLT_COLORS = {4.0: "tab:blue", 5.0: "tab:orange", 6.0: "tab:red"}
 FRICTION_NAMES = {"1": "1 viscous", "2": "2 Dahl", "3": "3 LuGre"}
-_UMASK = os.umask(0)
-os.umask(_UMASK)
-FILE_MODE = 0o666 & ~_UMASK   # what open() would give; mkstemp creates 0600
 
 
 @dataclass
@@ -55,26 +51,14 @@ class Settings:
 
 def save_png(fig, path: Path, dpi: int) -> None:
     """Write a figure atomically (temporary file in the same folder, then os.replace)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, format="png", dpi=dpi)
-        os.chmod(tmp, FILE_MODE)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=dpi))
     finally:
         plt.close(fig)
 
 
 def write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(text)
-    os.chmod(tmp, FILE_MODE)
-    os.replace(tmp, path)
+    write_atomic(path, text)
 
 
 def first_time(t, mask):

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from ..io import write_atomic
 from ..plantfile import save_plant
 from . import locate as L
 from .candidates import CANDIDATES
@@ -154,10 +153,7 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
 
 # ------------------------------------------------------------------------------------------ writing
 def _atomic_text(path: Path, text: str):
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
+    write_atomic(path, text)
 
 
 def _json_safe(o):
@@ -198,7 +194,7 @@ def plots(result, out: Path) -> list[str]:
     axes[-1, 0].set_xlabel("time [s]")
     fig.tight_layout()
     p = out / "residual_time.png"
-    fig.savefig(p, dpi=110)
+    write_atomic(p, lambda fh: fig.savefig(fh, dpi=110, format="png"))
     plt.close(fig)
     files.append(p.name)
 
@@ -217,7 +213,7 @@ def plots(result, out: Path) -> list[str]:
     ax.legend(fontsize=7)
     fig.tight_layout()
     p = out / "residual_regimes.png"
-    fig.savefig(p, dpi=110)
+    write_atomic(p, lambda fh: fig.savefig(fh, dpi=110, format="png"))
     plt.close(fig)
     files.append(p.name)
 
@@ -234,7 +230,7 @@ def plots(result, out: Path) -> list[str]:
     ax.legend(fontsize=7)
     fig.tight_layout()
     p = out / "angle_fit.png"
-    fig.savefig(p, dpi=110)
+    write_atomic(p, lambda fh: fig.savefig(fh, dpi=110, format="png"))
     plt.close(fig)
     files.append(p.name)
     return files
