@@ -18,7 +18,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from .components.base import REGISTRY, Component, Params
+from .components.base import REGISTRY, Component, Params, show
 from .components.drive import DRIVES
 from .components.friction import FRICTIONS
 from .components.rotor import RotorParams
@@ -29,6 +29,11 @@ from .integrate import Engine, solve_ivp_reference
 
 MODELS = tuple(f"{f}{d}" for f in "123" for d in "ABC")
 CORE_ROLES = ("drive", "friction", "spring", "stops")
+PLANT_SCHEMA = "etb-gym/plant/1"
+
+
+def _kind_of(v) -> str:
+    return {bool: "true/false", str: "text", dict: "a table", list: "a list"}.get(type(v), type(v).__name__)
 
 
 def _model_parts(model: str):
@@ -193,13 +198,7 @@ class Plant:
         changes.update(kw)
         if not changes:
             return self
-        groups: dict[str, dict] = {}
-        for key, val in changes.items():
-            if not isinstance(key, str) or "." not in key:
-                raise ValueError(f"parameter override {key!r}: expected 'component.field' with component one of "
-                                 f"{sorted(self.component_names + ('rotor', 'supply'))}")
-            comp, field = key.split(".", 1)
-            groups.setdefault(comp, {})[field] = val
+        groups = self.parse_overrides(changes)
         new = {}
         effects = list(self.effects)
         for comp, fields in groups.items():
@@ -209,14 +208,33 @@ class Plant:
                 new["supply"] = self.supply.replace(**fields)
             elif comp in CORE_ROLES and getattr(self, comp) is not None:
                 new[comp] = getattr(self, comp).with_params(**fields)
-            elif comp in self.component_names:
+            else:
                 k = self.component_names.index(comp) - sum(getattr(self, r) is not None for r in CORE_ROLES)
                 effects[k] = effects[k].with_params(**fields)
                 new["effects"] = effects
-            else:
-                raise ValueError(f"parameter override {comp}.{next(iter(fields))}: unknown component {comp!r}; "
-                                 f"valid: {sorted(self.component_names + ('rotor', 'supply'))}")
         return self.replace(**new)
+
+    def parse_overrides(self, overrides: Mapping, *, supply: bool = True) -> dict[str, dict]:
+        """The one "component.field" parser: {"friction.coulomb_Nm": 0.1} -> {"friction": {"coulomb_Nm": 0.1}}.
+        Errors name the key and list the valid components or fields; values are type-checked by the
+        components' parameter classes when applied."""
+        valid = {"rotor": RotorParams, **({"supply": SupplyParams} if supply else {})}
+        valid.update({n: c.Params for n, c in zip(self.component_names, self.components)})
+        groups: dict[str, dict] = {}
+        for key, val in overrides.items():
+            if not isinstance(key, str) or key.count(".") < 1 or not all(key.split(".", 1)):
+                raise ValueError(f"parameter override {show(key)}: expected 'component.field' with component one of "
+                                 f"{sorted(valid)}")
+            comp, field = key.split(".", 1)
+            if comp not in valid:
+                hint = " (the supply is not part of P; pass supply_V to step()/simulate())" if comp == "supply" else ""
+                raise ValueError(f"parameter override {key!r}: unknown component {comp!r}{hint}; valid: {sorted(valid)}")
+            fields = [f.name for f in dataclasses.fields(valid[comp])]
+            if field not in fields:
+                raise ValueError(f"parameter override {key!r}: unknown parameter {field!r} of {comp} ({valid[comp].__name__}); "
+                                 f"valid: {fields}")
+            groups.setdefault(comp, {})[field] = val
+        return groups
 
     def param_vector(self, overrides: Mapping[str, float] | None = None) -> np.ndarray:
         """The packed parameter vector P, optionally with "component.field" overrides applied and
@@ -226,24 +244,12 @@ class Plant:
             return self.P.copy()
         rotor = self.rotor
         comps = list(self.components)
-        groups: dict[str, dict] = {}
-        for key, val in overrides.items():
-            if not isinstance(key, str) or "." not in key:
-                raise ValueError(f"parameter override {key!r}: expected 'component.field'")
-            comp, field = key.split(".", 1)
-            groups.setdefault(comp, {})[field] = val
-        for comp, fields in groups.items():
+        for comp, fields in self.parse_overrides(overrides, supply=False).items():
             if comp == "rotor":
                 rotor = rotor.replace(**fields)
-            elif comp in self.component_names:
+            else:
                 k = self.component_names.index(comp)
                 comps[k] = comps[k].with_params(**fields)
-            elif comp == "supply":
-                raise ValueError(f"supply.{next(iter(fields))}: the supply is not part of P; pass supply_V "
-                                 "to step()/simulate()")
-            else:
-                raise ValueError(f"parameter override {comp}.{next(iter(fields))}: unknown component {comp!r}; "
-                                 f"valid: {sorted(self.component_names + ('rotor',))}")
         vecs = [np.asarray(c.param_vector(), float) for c in comps]
         P = np.concatenate([[rotor.inertia_kg_m2], *vecs])
         if P.shape != self.P.shape:
@@ -263,7 +269,7 @@ class Plant:
 
     def to_dict(self) -> dict:
         """A plain description of the plant (the plant-file format, see docs/plant-file.md)."""
-        d = {"schema": "etb-gym/plant/1", "model": self.model, "control_period_s": self.control_period_s,
+        d = {"schema": PLANT_SCHEMA, "model": self.model, "control_period_s": self.control_period_s,
              "substeps": self.substeps, "rotor": self.rotor.to_dict(), "supply": self.supply.to_dict()}
         for role in CORE_ROLES:
             c = getattr(self, role)
@@ -273,33 +279,69 @@ class Plant:
 
     @classmethod
     def from_dict(cls, d: Mapping) -> "Plant":
+        """Build a plant from its plain description (a parsed plant file, docs/plant-file.md). Every error names
+        the key (``rotor.inertia_kg_m2``, ``effects[1].params.gain``) and what was expected."""
+        def table(v, where):
+            if not isinstance(v, Mapping):
+                raise ValueError(f"{where} must be a table, got {_kind_of(v)}")
+            return v
+
+        def params_of(P, values, where):
+            values = dict(table(values, where))
+            names = [f.name for f in dataclasses.fields(P)]
+            unknown = sorted(set(values) - set(names))
+            if unknown:
+                raise ValueError(f"{where} has unknown key(s) {unknown}; valid: {names}")
+            if "inductance_table" in values and values["inductance_table"] is not None:
+                from .components.drive import InductanceTable
+                t = dict(table(values["inductance_table"], f"{where}.inductance_table"))
+                tn = [f.name for f in dataclasses.fields(InductanceTable)]
+                bad = sorted(set(t) - set(tn))
+                if bad or set(tn) - set(t):
+                    raise ValueError(f"{where}.inductance_table: expected exactly the keys {tn}, got {sorted(t)}")
+                try:
+                    values["inductance_table"] = InductanceTable(**t)
+                except (TypeError, ValueError) as e:
+                    raise ValueError(f"{where}.inductance_table: {e}") from None
+            try:
+                return P(**values)
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"{where}: {e}") from None
+
         def comp(spec, where):
             if spec is None:
                 return None
             if not isinstance(spec, Mapping) or "kind" not in spec:
-                raise ValueError(f"plant description: {where} must be a table with a 'kind' key")
+                raise ValueError(f"{where} must be a table with a 'kind' key")
+            extra = sorted(set(spec) - {"kind", "params", "name"})
+            if extra:
+                raise ValueError(f"{where} has unknown key(s) {extra}; valid: ['kind', 'name', 'params']")
             kind = spec["kind"]
-            if kind not in REGISTRY:
-                raise ValueError(f"plant description: {where}.kind = {kind!r} is unknown; valid: {sorted(REGISTRY)}")
+            if not isinstance(kind, str) or kind not in REGISTRY:
+                raise ValueError(f"{where}.kind = {show(kind)} is unknown; valid: {sorted(REGISTRY)}")
             C = REGISTRY[kind]
-            params = dict(spec.get("params", {}))
-            if "inductance_table" in params and params["inductance_table"] is not None:
-                from .components.drive import InductanceTable
-                params["inductance_table"] = InductanceTable(**params["inductance_table"])
-            names = {f.name for f in dataclasses.fields(C.Params)}
-            unknown = sorted(set(params) - names)
-            if unknown:
-                raise ValueError(f"plant description: {where}.params has unknown key(s) {unknown}; "
-                                 f"valid for {kind}: {sorted(names)}")
-            obj = C(C.Params(**params))
-            if spec.get("name"):
+            obj = C(params_of(C.Params, spec.get("params", {}), f"{where}.params"))
+            if spec.get("name") is not None:
+                if not isinstance(spec["name"], str) or not spec["name"].strip():
+                    raise ValueError(f"{where}.name = {show(spec['name'])}: expected a non-empty text")
                 obj.name = spec["name"]
             return obj
 
+        table(d, "the plant description")
         allowed = {"schema", "model", "control_period_s", "substeps", "rotor", "supply", "effects", *CORE_ROLES}
         unknown = sorted(set(d) - allowed)
         if unknown:
-            raise ValueError(f"plant description: unknown key(s) {unknown}; valid: {sorted(allowed)}")
+            raise ValueError(f"unknown key(s) {unknown}; valid: {sorted(allowed)}")
+        if "schema" in d and d["schema"] != PLANT_SCHEMA:
+            raise ValueError(f"schema = {show(d['schema'])} is not supported: expected {PLANT_SCHEMA!r} "
+                             f"(written by this version of etb-gym)")
+        if d.get("model") is not None and not isinstance(d["model"], str):
+            raise ValueError(f"model = {show(d['model'])}: expected one of {', '.join(MODELS)} as text")
+        for key, kind in (("control_period_s", "a number of seconds > 0"), ("substeps", "a whole number >= 1")):
+            v = d.get(key)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                                  or (key == "substeps" and not isinstance(v, int))):
+                raise ValueError(f"{key} = {show(v)}: expected {kind}, got {_kind_of(v)}")
         base = make_plant(d["model"]) if d.get("model") else None
         kw = {}
         for role in CORE_ROLES:
@@ -308,10 +350,13 @@ class Plant:
             elif base is not None:
                 kw[role] = getattr(base, role)
         if kw.get("drive") is None:
-            raise ValueError("plant description: needs a 'model' or a 'drive' table")
-        rotor = RotorParams(**d["rotor"]) if "rotor" in d else RotorParams()
-        supply = SupplyParams(**d["supply"]) if "supply" in d else SupplyParams()
-        effects = [comp(e, f"effects[{k}]") for k, e in enumerate(d.get("effects", []))]
+            raise ValueError("needs a 'model' or a 'drive' table")
+        rotor = params_of(RotorParams, d["rotor"], "rotor") if "rotor" in d else RotorParams()
+        supply = params_of(SupplyParams, d["supply"], "supply") if "supply" in d else SupplyParams()
+        effects = d.get("effects", [])
+        if not isinstance(effects, (list, tuple)):
+            raise ValueError(f"effects must be a list of tables ([[effects]] in TOML), got {_kind_of(effects)}")
+        effects = [comp(e, f"effects[{k}]") for k, e in enumerate(effects)]
         return cls(effects=effects, rotor=rotor, supply=supply,
                    control_period_s=d.get("control_period_s", 1e-3), substeps=d.get("substeps", 20),
                    model=d.get("model"), **kw)

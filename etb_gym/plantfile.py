@@ -68,26 +68,36 @@ def save_plant(plant: Plant, path) -> Path:
 
 
 def load_plant(path) -> Plant:
-    """Read a plant file (.toml or .json). Errors name the file and the offending key."""
+    """Read a plant file (.toml or .json). Errors name the file and the offending key; the file is only read."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"plant file {path} does not exist")
+    if not path.is_file():
+        raise ValueError(f"plant file {path}: is not a file")
+    if path.suffix.lower() not in (".toml", ".json"):
+        raise ValueError(f"plant file {path}: expected a .toml or .json file")
+    raw = path.read_bytes()
     try:
-        if path.suffix == ".json":
-            d = json.loads(path.read_text())
-        elif path.suffix == ".toml":
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise ValueError(f"plant file {path}: byte {e.start} is not UTF-8 text: expected a TOML or JSON text file "
+                         f"(save it as UTF-8)") from None
+    try:
+        if path.suffix.lower() == ".json":
+            d = json.loads(text, parse_constant=_no_constant)
+        else:
             import tomllib
 
-            d = tomllib.loads(path.read_text())
-        else:
-            raise ValueError(f"plant file {path}: expected a .toml or .json file")
-    except (json.JSONDecodeError, ValueError) as e:
-        if isinstance(e, ValueError) and "expected a .toml" in str(e):
-            raise
-        raise ValueError(f"plant file {path}: cannot parse: {e}") from e
+            d = tomllib.loads(text)
+    except ValueError as e:
+        raise ValueError(f"plant file {path}: cannot parse as {path.suffix.lower()[1:].upper()}: {e}") from None
     if not isinstance(d, dict):
-        raise ValueError(f"plant file {path}: expected a table at the top level")
+        raise ValueError(f"plant file {path}: expected a table (an object) at the top level")
     try:
         return Plant.from_dict(d)
-    except (ValueError, TypeError) as e:
-        raise ValueError(f"plant file {path}: {e}") from e
+    except (ValueError, TypeError, KeyError) as e:
+        raise ValueError(f"plant file {path}: {e}") from None
+
+
+def _no_constant(name):
+    raise ValueError(f"{name} is not a number a plant file may hold (expected finite numbers)")

@@ -89,7 +89,7 @@ def test_diagnose_validates_options(tmp_path, capsys):
         diagnose([rec], substeps=0)
     save_recording(rec, tmp_path / "r.csv")
     assert cli_main(["diagnose", str(tmp_path / "r.csv"), "--out", str(tmp_path / "o"), "--substeps", "-3"]) == 2
-    assert "--substeps -3: expected a positive integer" in capsys.readouterr().err
+    assert "--substeps: -3: expected a positive integer" in capsys.readouterr().err
 
 
 def test_closed_loop_recording_is_the_reference_pid_on_the_sensor_readings():

@@ -35,10 +35,33 @@ import numpy as np
 REGISTRY: dict[str, type["Component"]] = {}
 
 
+def show(value: Any) -> str:
+    """A value as a user typed it: numpy scalars without their type wrapper (``nan``, not ``np.float64(nan)``)."""
+    if isinstance(value, np.generic):
+        value = value.item()
+    return repr(value)
+
+
 def check(owner: str, field: str, value: Any, ok: bool, expected: str) -> None:
     """Raise a ValueError that names the parameter, its value and what was expected."""
     if not ok:
-        raise ValueError(f"{owner}.{field} = {value!r} is invalid: expected {expected}")
+        raise ValueError(f"{owner}.{field} = {show(value)} is invalid: expected {expected}")
+
+
+def check_types(owner: str, obj: Any) -> None:
+    """Fields annotated float/int must hold numbers (not bool, not text); str fields must hold text."""
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        t = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
+        if t in ("float", "int"):
+            ok = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+            if t == "int" and ok:
+                ok = float(v) == int(v) if math.isfinite(float(v)) else False
+            if not ok:
+                raise ValueError(f"{owner}.{f.name} = {show(v)} is invalid: expected "
+                                 f"{'a number' if t == 'float' else 'a whole number'}, got {type(v).__name__}")
+        elif t == "str" and not isinstance(v, str):
+            raise ValueError(f"{owner}.{f.name} = {show(v)} is invalid: expected text, got {type(v).__name__}")
 
 
 def check_finite(owner: str, obj: Any) -> None:
@@ -67,6 +90,7 @@ class Params:
     """Base of all parameter dataclasses: finite numbers, validated on construction."""
 
     def __post_init__(self):
+        check_types(type(self).__name__, self)
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
             if isinstance(v, (int, float)) and not isinstance(v, bool):

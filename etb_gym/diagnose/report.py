@@ -15,6 +15,10 @@ from .candidates import CANDIDATES
 from .model import angle_residuals_deg, simulate
 
 
+FIGURES = ("residual_time.png", "residual_regimes.png", "angle_fit.png")
+REPORT_FILES = ("report.json", "report.md", "calibrated_plant.toml") + FIGURES
+
+
 def _rms(x) -> float:
     return float(math.sqrt(np.mean(np.concatenate(x) ** 2))) if len(x) else 0.0
 
@@ -272,6 +276,16 @@ def markdown(result, figures) -> str:
         for k, p in e["parameters"].items():
             lines.append(f"- `{k}` = {_fmt(p['value'], p['stderr'], p['unit'])}")
         lines.append("")
+    skipped = r.get("skipped_candidates") or []
+    if skipped:
+        lines += ["## Candidates skipped", "", "These candidates could not be tried; the verdict holds without them:", ""]
+        for s in skipped:
+            if isinstance(s, dict):
+                cid = s.get("id") or s.get("candidate") or "?"
+                lines.append(f"- `{cid}`: {s.get('reason') or s.get('error') or 'no reason given'}")
+            else:
+                lines.append(f"- {s}")
+        lines.append("")
     lines += ["## Unexplained", ""]
     if not r["unexplained"]:
         lines.append("Nothing significant remains." if r["verdict"] in ("match", "explained") else "")
@@ -300,6 +314,29 @@ def summary(result) -> str:
     for u in r["unexplained"]:
         s.append(f"  ? unexplained in {u['recording']}: {u['where']} (RMS {u['rms_deg']:.3f} deg): {u['description']}")
     return "\n".join(s)
+
+
+def write_failed(out: Path, reason: str, *, model: str, recordings: list, exc: BaseException | None = None) -> None:
+    """A diagnosis that could not proceed: report.json with verdict "failed" and the reason, a short report.md;
+    figures and a calibrated plant of an earlier report in ``out`` are removed so nothing stale remains."""
+    import traceback
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rep = {"schema": "etb-gym/diagnosis/1", "model": model, "recordings": list(recordings), "verdict": "failed",
+           "reason": reason}
+    if exc is not None:
+        rep["error_type"] = type(exc).__name__
+        rep["traceback"] = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    for f in ("calibrated_plant.toml",) + FIGURES:
+        try:
+            (out / f).unlink()
+        except FileNotFoundError:
+            pass
+    _atomic_text(out / "report.json", json.dumps(_json_safe(rep), indent=2) + "\n")
+    _atomic_text(out / "report.md", f"# Diagnosis of {', '.join(recordings)} against model {model}\n\n"
+                                    f"**Verdict: failed.** {reason}\n\nNo model was fitted; nothing else was written. "
+                                    f"The exit code was 3 (see docs/errors.md).\n")
 
 
 def write(result, out: Path) -> None:
