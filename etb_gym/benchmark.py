@@ -329,8 +329,11 @@ def row_key(r) -> tuple:
 # ------------------------------------------------------------------------------------------------ sweep
 def make_jobs(controllers: Iterable[str], scenarios: Iterable[str], variants: Iterable[str], seeds: Iterable[int],
               env_id: str = DEFAULT_ENV, controller_kwargs: Mapping | None = None) -> list[Job]:
-    """The cross product, validated (unknown scenario / variant / env names list the valid ones)."""
+    """The cross product, validated (unknown scenario / variant / env names list the valid ones). A name given
+    twice (``--controller pid --controller pid``) is run once."""
     model_of(env_id)
+    controllers, scenarios, variants = (list(dict.fromkeys(x)) for x in (controllers, scenarios, variants))
+    seeds = list(dict.fromkeys(int(s) for s in seeds))
     scenarios = check_names("scenario", scenarios, SCENARIOS)
     variants = check_names("variant", variants, VARIANTS)
     ckw = tuple(sorted((controller_kwargs or {}).items()))

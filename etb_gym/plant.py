@@ -283,7 +283,7 @@ class Plant:
         the key (``rotor.inertia_kg_m2``, ``effects[1].params.gain``) and what was expected."""
         def table(v, where):
             if not isinstance(v, Mapping):
-                raise ValueError(f"{where} must be a table, got {_kind_of(v)}")
+                raise ValueError(f"{where}: expected a table, got {_kind_of(v)}")
             return v
 
         def params_of(P, values, where):
@@ -312,7 +312,7 @@ class Plant:
             if spec is None:
                 return None
             if not isinstance(spec, Mapping) or "kind" not in spec:
-                raise ValueError(f"{where} must be a table with a 'kind' key")
+                raise ValueError(f"{where}: expected a table with a 'kind' key (one of {sorted(REGISTRY)})")
             extra = sorted(set(spec) - {"kind", "params", "name"})
             if extra:
                 raise ValueError(f"{where} has unknown key(s) {extra}; valid: ['kind', 'name', 'params']")
@@ -350,13 +350,18 @@ class Plant:
             elif base is not None:
                 kw[role] = getattr(base, role)
         if kw.get("drive") is None:
-            raise ValueError("needs a 'model' or a 'drive' table")
+            raise ValueError(f"expected a 'model' ({', '.join(MODELS)}) or a 'drive' table")
         rotor = params_of(RotorParams, d["rotor"], "rotor") if "rotor" in d else RotorParams()
         supply = params_of(SupplyParams, d["supply"], "supply") if "supply" in d else SupplyParams()
         effects = d.get("effects", [])
         if not isinstance(effects, (list, tuple)):
-            raise ValueError(f"effects must be a list of tables ([[effects]] in TOML), got {_kind_of(effects)}")
+            raise ValueError(f"effects: expected a list of tables ([[effects]] in TOML), got {_kind_of(effects)}")
         effects = [comp(e, f"effects[{k}]") for k, e in enumerate(effects)]
+        names = [e.name for e in effects if "name" in e.__dict__]
+        clash = sorted({n for n in names if names.count(n) > 1 or n in CORE_ROLES})
+        if clash:
+            raise ValueError(f"effects: the name(s) {clash} are used twice or by a core component: expected "
+                             f"distinct names other than {', '.join(CORE_ROLES)}")
         return cls(effects=effects, rotor=rotor, supply=supply,
                    control_period_s=d.get("control_period_s", 1e-3), substeps=d.get("substeps", 20),
                    model=d.get("model"), **kw)

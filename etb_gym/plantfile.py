@@ -90,7 +90,9 @@ def load_plant(path) -> Plant:
 
             d = tomllib.loads(text)
     except ValueError as e:
-        raise ValueError(f"plant file {path}: cannot parse as {path.suffix.lower()[1:].upper()}: {e}") from None
+        fmt = path.suffix.lower()[1:].upper()
+        raise ValueError(f"plant file {path}: cannot parse as {fmt} ({e}): expected a {fmt} file as described in "
+                         f"docs/plant-file.md") from None
     if not isinstance(d, dict):
         raise ValueError(f"plant file {path}: expected a table (an object) at the top level")
     try:
