@@ -146,6 +146,18 @@ class Plant:
             f"{n}.{s}" for n, c in zip(names, self.components) for s in c.state_names)
         self._lock_from_stops()
 
+    # ------------------------------------------------------------------------------ pickling
+    def __getstate__(self):
+        """Everything but the compiled engine (its generated functions live in a module made at run time);
+        ``__setstate__`` rebuilds it from the components, from the kernel cache when it was compiled before."""
+        state = dict(self.__dict__)
+        state.pop("engine", None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self.engine = Engine(self.components, [np.asarray(c.param_vector(), float) for c in self.components])
+
     # ------------------------------------------------------------------------------ introspection
     def _name(self, c):
         for role in CORE_ROLES:
