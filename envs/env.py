@@ -9,6 +9,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from etb_gym.components.base import show
 from etb_gym.components.sensor import PositionSensor, PositionSensorParams
 from etb_gym.jit import kernel, py_func
 from etb_gym.plant import MODELS, Plant, make_plant
@@ -77,13 +78,18 @@ def load_plant_spec(plant) -> Plant:
 
 
 def _finite_number(where, v, lo=-math.inf, hi=math.inf, expected="a finite number"):
+    if isinstance(v, (bool, np.bool_, str, bytes)):         # True is not 1 s, "3" is not 3 V
+        raise ValueError(f"{where} = {show(v)} is invalid: expected {expected}, got {type(v).__name__}")
     try:
         f = float(v)
     except (TypeError, ValueError):
-        raise ValueError(f"{where} = {v!r} is invalid: expected {expected}") from None
+        raise ValueError(f"{where} = {show(v)} is invalid: expected {expected}") from None
     if not (math.isfinite(f) and lo <= f <= hi):
-        raise ValueError(f"{where} = {v!r} is invalid: expected {expected}")
+        raise ValueError(f"{where} = {show(v)} is invalid: expected {expected}")
     return f
+
+
+MAX_EPISODE_STEPS = 10_000_000      # the reference is tabulated per episode: bound the memory before allocating
 
 
 # the single env runs the kernels' plain-Python functions: on scalars they beat a compiled call's dispatch
@@ -230,6 +236,10 @@ class ETBEnv(gym.Env):
         self.plant = p
         self.dt = p.control_period_s
         self.episode_s = _finite_number("episode_s", episode_s, 0.0, math.inf, "a duration > 0 s")
+        if self.episode_s / self.dt > MAX_EPISODE_STEPS:
+            raise ValueError(f"episode_s = {show(episode_s)} s is {self.episode_s / self.dt:.3g} control periods of "
+                             f"{self.dt:g} s: expected at most {MAX_EPISODE_STEPS:,} per episode "
+                             f"({MAX_EPISODE_STEPS * self.dt:g} s); use shorter episodes")
         self.max_steps = int(round(self.episode_s / self.dt))
         if self.max_steps < 1:
             raise ValueError(f"episode_s = {episode_s!r} is shorter than one control period ({self.dt} s)")

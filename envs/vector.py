@@ -339,13 +339,13 @@ class ETBVectorEnv(VectorEnv):
         a = np.asarray(actions)
         if a.dtype != np.float32 and a.dtype != np.float64:     # the dtypes clip_duties is compiled for
             a = a.astype(float)
-        if a.size != N:
-            raise ValueError(f"actions have shape {a.shape}: expected ({N}, 1), one duty cycle per sub-env")
+        if a.shape not in ((N,), (N, 1)):
+            raise ValueError(f"actions have shape {a.shape}: expected ({N},) or ({N}, 1), one duty cycle per sub-env")
         a = a.reshape(N)
         d = self._d
         bad = clip_duties(a, self._autoreset, d)
         if bad >= 0:
-            raise ValueError(f"actions[{bad}] = {a[bad]!r}: expected a finite duty cycle in [-1, 1]")
+            raise ValueError(f"actions[{bad}] = {float(a[bad])!r}: expected a finite duty cycle in [-1, 1]")
         ok = self._step_plants(d)
         live = ~self._autoreset
         if not ok.all() and not ok[live].all():

@@ -39,3 +39,32 @@ def test_env_pickled_mid_episode_steps_bit_identically(env_id):
     o1, _ = e.reset(seed=9)
     o2, _ = f.reset(seed=9)
     assert np.array_equal(o1, o2)
+
+
+# ------------------------------------------------------------------------------ env option and action checks
+@pytest.mark.parametrize("kw, words", [
+    ({"control_period_s": True}, ["control_period_s = True", "got bool"]),
+    ({"supply_V": True}, ["supply_V = True", "got bool"]),
+    ({"episode_s": "3"}, ["episode_s = '3'", "got str"]),
+    ({"episode_s": 1e7}, ["episode_s = 10000000.0 s", "at most 10,000,000"]),
+    ({"supply_V": np.float64("nan")}, ["supply_V = nan"]),
+])
+def test_env_options_type_checked_before_allocating(kw, words):
+    with pytest.raises(ValueError) as e:
+        gym.make("ETB-3B-v0", **kw)
+    msg = str(e.value)
+    assert "np.float64" not in msg
+    for w in words:
+        assert w in msg, msg
+
+
+def test_vector_actions_of_the_wrong_shape_are_refused():
+    from envs.vector import ETBVectorEnv
+    v = ETBVectorEnv(num_envs=8)
+    v.reset(seed=0)
+    for shape in [(4, 2), (2, 4), (8, 2), (1, 8)]:
+        with pytest.raises(ValueError, match=r"expected \(8,\) or \(8, 1\)"):
+            v.step(np.zeros(shape))
+    v.step(np.zeros((8, 1)))
+    v.step(np.zeros(8))
+    v.close()
