@@ -358,6 +358,9 @@ def run_sweep(jobs: list[Job], out_dir, workers: int = 2, ray_address: str | Non
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / "results.csv"
+    if resume:              # what a killed writer left: hidden temporaries, never a result (etb_gym.io)
+        for f in [*out.glob(".*.tmp"), *(out / "traces").glob(".*.tmp")]:
+            f.unlink(missing_ok=True)
     rows = read_results(csv_path) if resume else []
     done = {row_key(r) for r in rows}
     todo = [j for j in jobs if j.key not in done]

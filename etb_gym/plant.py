@@ -32,6 +32,10 @@ CORE_ROLES = ("drive", "friction", "spring", "stops")
 PLANT_SCHEMA = "etb-gym/plant/1"
 
 
+def _states_text(names, x) -> str:
+    return ", ".join(f"{n} = {float(v):.6g}" for n, v in zip(names, x))
+
+
 def _kind_of(v) -> str:
     return {bool: "true/false", str: "text", dict: "a table", list: "a list"}.get(type(v), type(v).__name__)
 
@@ -389,7 +393,7 @@ class Plant:
         phi = self.limp_home_rad if angle_rad is None else float(angle_rad)
         for nm, v in (("angle_rad", phi), ("velocity_rad_s", velocity_rad_s), ("current_A", current_A)):
             if not math.isfinite(v):
-                raise ValueError(f"initial {nm} = {v!r}: expected a finite number")
+                raise ValueError(f"initial {nm} = {show(v)}: expected a finite number")
         if not (self.angle_min_rad - 1e-9 <= phi <= self.angle_max_rad + 1e-9):
             raise ValueError(f"initial angle_rad = {phi!r} is outside the end stops "
                              f"[{self.angle_min_rad}, {self.angle_max_rad}] rad")
@@ -418,7 +422,7 @@ class Plant:
             raise ValueError(f"supply_V has shape {Vs.shape}: expected a scalar or shape ({n},)")
         if not np.all(np.isfinite(Vs)) or np.any(Vs <= 0):
             k = int(np.argmax(~np.isfinite(Vs) | (Vs <= 0)))
-            raise ValueError(f"supply_V[{k}] = {Vs[k]!r}: expected a finite voltage > 0 V")
+            raise ValueError(f"supply_V[{k}] = {show(Vs[k])}: expected a finite voltage > 0 V")
         if (duty is None) == (voltage is None):
             raise ValueError("give exactly one of duty= (H-bridge duty in [-1, 1]) or voltage= (V)")
         if duty is not None:
@@ -426,23 +430,23 @@ class Plant:
             bad = ~np.isfinite(d)
             if bad.any():
                 k = int(np.argmax(bad))
-                raise ValueError(f"duty[{k}] = {d[k]!r}: expected a finite duty cycle in [-1, 1]")
+                raise ValueError(f"duty[{k}] = {show(d[k])}: expected a finite duty cycle in [-1, 1]")
             out = np.abs(d) > 1 + 1e-12
             if out.any():
                 k = int(np.argmax(out))
-                raise ValueError(f"duty[{k}] = {d[k]!r}: expected a duty cycle in [-1, 1]")
+                raise ValueError(f"duty[{k}] = {show(d[k])}: expected a duty cycle in [-1, 1]")
             return np.clip(d, -1, 1), Vs
         v = np.asarray(voltage, float).reshape(-1)
         bad = ~np.isfinite(v)
         if bad.any():
             k = int(np.argmax(bad))
-            raise ValueError(f"voltage[{k}] = {v[k]!r}: expected a finite voltage")
+            raise ValueError(f"voltage[{k}] = {show(v[k])}: expected a finite voltage")
         if v.shape != (n,):
             raise ValueError(f"voltage has shape {v.shape}: expected ({n},)")
         over = np.abs(v) > Vs * (1 + 1e-12)
         if over.any():
             k = int(np.argmax(over))
-            raise ValueError(f"voltage[{k}] = {v[k]!r} V exceeds the supply ({Vs[k]} V): the H-bridge can only "
+            raise ValueError(f"voltage[{k}] = {show(v[k])} V exceeds the supply ({Vs[k]} V): the H-bridge can only "
                              f"apply voltages in [-supply, +supply]")
         return np.clip(v / Vs, -1, 1), Vs
 
@@ -474,7 +478,7 @@ class Plant:
                             self.supply.switching, self.supply.pwm_frequency_hz, X, A)
         if done < n:
             raise FloatingPointError(f"the state became non-finite in control period {done} "
-                                     f"(t = {t0 + done * self.control_period_s:.6f} s): {dict(zip(self.state_names, X[done + 1]))}")
+                                     f"(t = {t0 + done * self.control_period_s:.6f} s): {_states_text(self.state_names, X[done + 1])}")
         return self._trajectory(X, A, d, Vs, t0)
 
     def _trajectory(self, X, A, d, Vs, t0):
@@ -510,7 +514,7 @@ class Plant:
         bad = ~np.isfinite(x)
         if bad.any():
             k = int(np.argmax(bad))
-            raise ValueError(f"state {self.state_names[k]} = {x[k]!r}: expected a finite number")
+            raise ValueError(f"state {self.state_names[k]} = {show(x[k])}: expected a finite number")
         return x
 
     def step_batch(self, X: np.ndarray, duty: np.ndarray, supply_V: np.ndarray, P: np.ndarray,
@@ -543,7 +547,7 @@ class Plant:
         ok = self.engine.fns.control_step(x, d, V, self.P if P is None else P, float(t0), self.control_period_s, self.substeps,
                                           self.supply.switching, self.supply.pwm_frequency_hz, aux)
         if not ok:
-            raise FloatingPointError(f"the plant state became non-finite: {dict(zip(self.state_names, x))}")
+            raise FloatingPointError(f"the plant state became non-finite: {_states_text(self.state_names, x)}")
         return x
 
 

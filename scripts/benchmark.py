@@ -46,6 +46,8 @@ def parse_args(argv=None):
     p.add_argument("--ray", metavar="ADDRESS", default=None,
                    help="run on Ray: 'local' starts a local instance, 'auto' or 'ray://host:port' joins a cluster")
     p.add_argument("--resume", action="store_true", help="keep the rows in OUT/results.csv and run only the missing ones")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing OUT/results.csv (default: refuse unless --resume, so no result is lost)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG response plots")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no table on stdout")
     a = p.parse_args(argv)
@@ -74,6 +76,13 @@ def main(argv=None) -> int:
         print(f"benchmark.py: error: {exc}", file=sys.stderr)
         return 2
     out = Path(a.out)
+    if out.exists() and not out.is_dir():
+        print(f"benchmark.py: error: --out {out}: is an existing file: expected a folder", file=sys.stderr)
+        return 2
+    if (out / "results.csv").exists() and not (a.resume or a.force):
+        print(f"benchmark.py: error: --out {out}: already holds results.csv: add --resume to complete it, --force "
+              f"to replace it, or choose another folder", file=sys.stderr)
+        return 2
     t0 = time.perf_counter()
     try:
         rows = run_sweep(jobs, out, workers=a.workers, ray_address=a.ray, resume=a.resume, progress=not a.quiet)

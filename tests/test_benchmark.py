@@ -108,15 +108,30 @@ def test_report_marks_targets(tiny):
     assert files and files[0].stat().st_size > 5000
 
 
+def _same_csv(ref_dir, got_dir, label):
+    """Byte-identical results.csv (the runs are deterministic: seeded, single-threaded kernels, 6 significant
+    digits); on a difference the message lists the differing cells and keeps both files' paths."""
+    a, b = (ref_dir / "results.csv").read_text(), (got_dir / "results.csv").read_text()
+    if a == b:
+        return
+    ra, rb = list(csv.DictReader(a.splitlines())), list(csv.DictReader(b.splitlines()))
+    diffs = [f"{x['controller']}/{x['scenario']}/{x['variant']}/{x['seed']}: {k} {x[k]} vs {y[k]}"
+             for x, y in zip(ra, rb) for k in x if x[k] != y.get(k)]
+    pytest.fail(f"{label} results differ from the in-process run ({len(ra)} vs {len(rb)} rows): "
+                + "; ".join(diffs[:20]) + f"\nfiles kept: {ref_dir / 'results.csv'} {got_dir / 'results.csv'}")
+
+
 def test_same_results_with_process_pool_and_ray(tiny, tmp_path):
     out, jobs, rows = tiny
     pool = run_sweep(jobs, tmp_path / "pool", workers=2, progress=False)
+    _same_csv(out, tmp_path / "pool", "process pool")
     assert bench_report.markdown(pool) == bench_report.markdown(rows)
     try:
         import ray  # noqa: F401
     except ImportError:
         pytest.skip("ray is not installed (optional extra: pip install 'etb-gym[ray]')")
     viaray = run_sweep(jobs, tmp_path / "ray", ray_address="local", progress=False)
+    _same_csv(out, tmp_path / "ray", "Ray")
     assert bench_report.markdown(viaray) == bench_report.markdown(rows)
 
 
