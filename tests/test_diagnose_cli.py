@@ -171,3 +171,14 @@ def test_markdown_lists_skipped_candidates():
          "skipped_candidates": [{"id": "coil_heating", "reason": "its first simulation failed (non-finite state)"}]}
     md = markdown(SimpleNamespace(report=r), [])
     assert "## Candidates skipped" in md and "`coil_heating`: its first simulation failed" in md
+
+
+def test_library_checks_out_before_work(tmp_path, rec_path, monkeypatch):
+    from etb_gym.diagnose import diagnose
+    from etb_gym.diagnose import run as R
+    f = tmp_path / "f"
+    f.write_text("x")
+    monkeypatch.setattr(R, "prepare", lambda *a, **k: (_ for _ in ()).throw(AssertionError("work started")))
+    with pytest.raises(ValueError, match="is an existing file"):
+        diagnose([rec_path], out=f)
+    assert f.read_text() == "x"

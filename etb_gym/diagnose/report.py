@@ -316,6 +316,16 @@ def summary(result) -> str:
     return "\n".join(s)
 
 
+def prepare_out(out: Path) -> None:
+    """Create the output folder now, or say why it cannot be (an existing file in the way, no permission)."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"out = {out}: is an existing file: expected a folder for the report")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ValueError(f"out = {out}: cannot create the folder ({e.strerror or e})") from None
+
+
 def write_failed(out: Path, reason: str, *, model: str, recordings: list, exc: BaseException | None = None) -> None:
     """A diagnosis that could not proceed: report.json with verdict "failed" and the reason, a short report.md;
     figures and a calibrated plant of an earlier report in ``out`` are removed so nothing stale remains."""

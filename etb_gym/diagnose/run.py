@@ -126,6 +126,9 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
     unknown = [c for c in opts.candidates if c not in CANDIDATES]
     if unknown:
         raise ValueError(f"unknown candidate effect(s) {unknown}; valid: {', '.join(CANDIDATES)}")
+    if out is not None:
+        from .report import prepare_out
+        prepare_out(Path(out))                 # before the work: a bad --out must not cost a diagnosis
     recs = [r if isinstance(r, Recording) else load_recording(r) for r in recordings]
     if not recs:
         raise ValueError("diagnose needs at least one recording")
