@@ -46,7 +46,7 @@ SCALED_ALIASES = {
     "supply_V": {"supply_mv": 1e-3, "supply [mv]": 1e-3},
     "current_A": {"current_ma": 1e-3, "i_ma": 1e-3, "current [ma]": 1e-3},
 }
-MAX_FILE_BYTES = 1 << 30       # 1 GiB: about 20 million rows of CSV
+MAX_FILE_BYTES = 1 << 28       # 256 MiB: about 5 million rows of CSV (80 min at 1 kHz)
 SAMPLE_PERIOD_RANGE_S = (1e-6, 0.02)   # 1 MHz .. 50 Hz: what a throttle recording can be
 VOLTAGE_LIMIT_V = 60.0         # no automotive bridge or battery exceeds this (48 V systems stay below 60 V)
 CURRENT_LIMIT_A = 100.0        # a throttle motor draws a few amperes; 100 A is far beyond any
@@ -140,49 +140,60 @@ def _delimiter(header: str) -> str:
     return ","
 
 
+def _data_lines(text: str, where: list):
+    """Non-empty, non-comment lines, lazily (a large file is never held twice as a list of lines); the
+    current 1-based line number is kept in ``where[0]`` for messages."""
+    for k, ln in enumerate(io.StringIO(text, newline=None)):
+        if ln.strip() and not ln.lstrip().startswith("#"):
+            where[0] = k + 1
+            yield ln.rstrip("\n")
+
+
 def _read_csv(path: Path) -> dict:
     text = _decode(path, path.read_bytes())
-    numbered = [(k + 1, ln) for k, ln in enumerate(text.splitlines())
-                if ln.strip() and not ln.lstrip().startswith("#")]
-    if not numbered:
+    where = [0]
+    n_lines = sum(1 for _ in _data_lines(text, where))
+    if not n_lines:
         raise RecordingError(f"{path}: the file holds no data (only empty or # comment lines): expected a header "
                              f"line and one row per sample")
-    delim = _delimiter(numbered[0][1])
-    rows = list(csv.reader(io.StringIO("\n".join(ln for _, ln in numbered)), delimiter=delim))
-    header = [h.strip().strip('"').strip() for h in rows[0]]
+    lines = _data_lines(text, where)
+    first = next(lines)
+    header_line = where[0]
+    delim = _delimiter(first)
+    header = [h.strip().strip('"').strip() for h in next(csv.reader([first], delimiter=delim))]
     if all(_is_number(h) for h in header):
-        raise RecordingError(f"{path}: line {numbered[0][0]}: the first line must be a header naming the columns "
+        raise RecordingError(f"{path}: line {header_line}: the first line must be a header naming the columns "
                              f"(time_s, voltage_V or duty + supply_V, angle_deg, optional current_A)")
     for k, h in enumerate(header):
         if not h:
-            raise RecordingError(f"{path}: line {numbered[0][0]}: column {k + 1} of the header has no name: "
+            raise RecordingError(f"{path}: line {header_line}: column {k + 1} of the header has no name: "
                                  f"expected a name for every column")
         if header.index(h) != k:
             raise RecordingError(f"{path}: column {h!r} appears twice (columns {header.index(h) + 1} and {k + 1}): "
                                  f"expected each column once")
     comma_decimal = delim != ","
-    data = {h: np.empty(len(rows) - 1) for h in header}
-    last = len(rows) - 2
-    for r, row in enumerate(rows[1:]):
-        line = numbered[r + 1][0]
+    n = n_lines - 1
+    data = {h: np.empty(n) for h in header}
+    cols = [data[h] for h in header]
+    for r, row in enumerate(csv.reader(lines, delimiter=delim)):
         if len(row) != len(header):
             hint = ""
-            if r == last and len(row) < len(header):
+            if r == n - 1 and len(row) < len(header):
                 hint = " (the last line is incomplete: the file looks truncated)"
             elif delim == "," and len(row) > len(header):
                 hint = " (decimal commas need ';' or tab as the separator)"
-            raise RecordingError(f"{path}: data row {r} (line {line}) has {len(row)} fields: expected {len(header)} "
-                                 f"({', '.join(header)}){hint}")
-        for h, v in zip(header, row):
+            raise RecordingError(f"{path}: data row {r} (line {where[0]}) has {len(row)} fields: expected "
+                                 f"{len(header)} ({', '.join(header)}){hint}")
+        for c, (h, v) in enumerate(zip(header, row)):
             v = v.strip()
             try:
-                data[h][r] = float(v) if v else math.nan
+                cols[c][r] = float(v) if v else math.nan
             except ValueError:
-                if comma_decimal and _is_number(v.replace(",", ".", 1)) and v.count(",") == 1:
-                    data[h][r] = float(v.replace(",", "."))
+                if comma_decimal and v.count(",") == 1 and _is_number(v.replace(",", ".")):
+                    cols[c][r] = float(v.replace(",", "."))
                 else:
                     raise RecordingError(f"{path}: column {h!r}, row {r}: {v[:40]!r} is not a number "
-                                         f"(line {line}): expected a decimal number") from None
+                                         f"(line {where[0]}): expected a decimal number") from None
     return data
 
 

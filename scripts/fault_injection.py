@@ -2,7 +2,7 @@
 """SIGKILL fault injection of the benchmark: N random SIGKILL/--resume cycles, then the final CSV and traces are
 compared with an uninterrupted run's. Prints one line per check; exit 0 when everything matches.
 
-    python scripts/fault_injection.py --kills 20 --seed 0
+    python scripts/fault_injection.py --kills 20 --seeds 6 --seed 0
 """
 from __future__ import annotations
 
@@ -16,22 +16,24 @@ from pathlib import Path
 import numpy as np
 
 from etb_gym.benchmark import load_trace, make_jobs, read_results, run_sweep
-from etb_gym.faultinject import benchmark_cmd, kill_resume_cycles, leftovers
+from etb_gym.faultinject import BENCH_GRID, benchmark_cmd, kill_resume_cycles, leftovers
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--kills", type=int, default=20, help="SIGKILL/resume cycles (default 20)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the kill times (default 0)")
-    ap.add_argument("--window", type=float, nargs=2, default=(1.0, 8.0), metavar=("LO", "HI"),
-                    help="kill after a uniform random time in [LO, HI] s (default 1 8)")
+    ap.add_argument("--seeds", type=int, default=6, help="benchmark seeds: 8 runs per seed (default 6: 48 runs)")
+    ap.add_argument("--jitter", type=float, default=0.6,
+                    help="kill a random 0..JITTER s after a random number of new rows reached the disk (default 0.6)")
     a = ap.parse_args(argv)
-    jobs = make_jobs(["pid"], ["small_step_40", "step_10_80"], ["nominal", "friction_+50"], range(2))
+    jobs = make_jobs(*BENCH_GRID, range(a.seeds))
     with tempfile.TemporaryDirectory(prefix="etb_faults_") as tmp:
         ref, out = Path(tmp) / "ref", Path(tmp) / "killed"
         run_sweep(jobs, ref, workers=1, progress=False)
         t0 = time.monotonic()
-        c = kill_resume_cycles(benchmark_cmd(out), out, a.kills, random.Random(a.seed), tuple(a.window))
+        c = kill_resume_cycles(benchmark_cmd(out, seeds=a.seeds), out, a.kills, random.Random(a.seed), len(jobs),
+                               jitter_s=a.jitter)
         same_csv = (out / "results.csv").read_bytes() == (ref / "results.csv").read_bytes()
         rows = read_results(out / "results.csv")
         keys = [(r["controller"], r["scenario"], r["variant"], r["seed"]) for r in rows]

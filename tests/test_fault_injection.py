@@ -3,24 +3,23 @@ rows only grow between kills, no half-written result. (More cycles: python scrip
 import os
 import random
 import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from etb_gym.benchmark import load_trace, make_jobs, run_sweep
-from etb_gym.faultinject import benchmark_cmd, kill_resume_cycles, leftovers
+from etb_gym.faultinject import BENCH_GRID, benchmark_cmd, kill_resume_cycles, leftovers
 
 pytestmark = pytest.mark.skipif(os.name != "posix", reason="SIGKILL needs POSIX")
 
 
 def test_benchmark_survives_sigkill_and_resumes_identically(tmp_path):
-    jobs = make_jobs(["pid"], ["small_step_40", "step_10_80"], ["nominal", "friction_+50"], range(2))
+    jobs = make_jobs(*BENCH_GRID, range(2))
     ref = tmp_path / "ref"
     run_sweep(jobs, ref, workers=1, progress=False)
     out = tmp_path / "killed"
-    c = kill_resume_cycles(benchmark_cmd(out), out, n_kills=3, rng=random.Random(2), window_s=(2.5, 7.0))
-    assert c.kills >= 2, c
+    c = kill_resume_cycles(benchmark_cmd(out, seeds=2), out, n_kills=3, rng=random.Random(2), n_jobs=len(jobs))
+    assert c.kills >= 2 and max(c.rows_at_kill) > 0, c
     assert (out / "results.csv").read_bytes() == (ref / "results.csv").read_bytes(), \
         f"kills at {c.kill_times_s} s (rows then {c.rows_at_kill})"
     for j in jobs:
