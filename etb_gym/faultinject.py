@@ -1,7 +1,7 @@
 """SIGKILL fault injection for long jobs: run a command, kill it (SIGKILL: no cleanup, no finally) at random
 moments, resume it, and compare what it leaves with an uninterrupted run.
 
-    python scripts/fault_injection.py --kills 20 --seeds 6   # the benchmark, 20 random SIGKILL/resume cycles
+    python scripts/fault_injection.py --kills 20 --seeds 20  # the benchmark, 20 random SIGKILL/resume cycles
 
 Used by tests/test_fault_injection.py (a few cycles) and scripts/fault_injection.py (many).
 """
@@ -49,10 +49,12 @@ def _wait_rows(p: subprocess.Popen, csv_path: Path, target: int, deadline: float
 
 
 def kill_resume_cycles(cmd: list, out: Path, n_kills: int, rng: random.Random, n_jobs: int,
-                       jitter_s: float = 0.6, results: str = "results.csv", env: dict | None = None,
+                       jitter_s: float = 0.6, max_rows_per_cycle: int = 3, results: str = "results.csv",
+                       env: dict | None = None,
                        timeout_s: float = 600.0) -> Cycles:
     """Run ``cmd`` (which must resume from ``out``) ``n_kills`` times; each run is killed with SIGKILL (the whole
-    process group, no cleanup) at a random point of the sweep: once a random number of new rows is on disk,
+    process group, no cleanup) at a random point of the sweep: once a random number (0 .. ``max_rows_per_cycle``
+    - 1) of new rows is on disk,
     after a further random 0..``jitter_s`` s (so kills land inside jobs and inside writes). After each kill,
     ``out/results`` must be a complete CSV whose rows only grow. Then the command runs once more to completion.
     Returns what happened; raises AssertionError on a broken file."""
@@ -65,7 +67,7 @@ def kill_resume_cycles(cmd: list, out: Path, n_kills: int, rng: random.Random, n
         remaining = n_jobs - seen
         if remaining <= 0:
             break
-        target = seen + rng.randrange(remaining)
+        target = seen + rng.randrange(min(remaining, max_rows_per_cycle))
         p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, start_new_session=True)
         t0 = time.monotonic()
         alive = _wait_rows(p, csv_path, target, t0 + timeout_s)

@@ -2,7 +2,7 @@
 """SIGKILL fault injection of the benchmark: N random SIGKILL/--resume cycles, then the final CSV and traces are
 compared with an uninterrupted run's. Prints one line per check; exit 0 when everything matches.
 
-    python scripts/fault_injection.py --kills 20 --seeds 6 --seed 0
+    python scripts/fault_injection.py --kills 20 --seeds 20 --seed 0
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--kills", type=int, default=20, help="SIGKILL/resume cycles (default 20)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the kill times (default 0)")
-    ap.add_argument("--seeds", type=int, default=6, help="benchmark seeds: 8 runs per seed (default 6: 48 runs)")
+    ap.add_argument("--seeds", type=int, default=20, help="benchmark seeds: 4 runs per seed (default 20: 80 runs)")
     ap.add_argument("--jitter", type=float, default=0.6,
                     help="kill a random 0..JITTER s after a random number of new rows reached the disk (default 0.6)")
     a = ap.parse_args(argv)

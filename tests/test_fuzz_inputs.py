@@ -4,10 +4,8 @@ is refused with a sentence that names the file or option and says what was expec
 deep inside (any other exception type fails the test), never a modified input, never an overwritten result.
 
 Run with ``-s`` to see the counts per boundary (they are also asserted: >= 500 in all)."""
-import csv
 import io
 import json
-import os
 import random
 import re
 from pathlib import Path
