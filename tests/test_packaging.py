@@ -108,3 +108,13 @@ def _environ_after_import(code: str) -> dict:
 def test_importing_the_package_changes_no_environment_variable():
     assert _environ_after_import("import etb_gym, etb_gym.envs, etb_gym.controllers, etb_gym.rl, "
                                  "etb_gym.diagnose, gymnasium as gym; gym.make('ETB-3B-v0')") == {}
+
+
+def test_readme_test_command_is_what_ci_runs():
+    import re
+
+    readme = (ROOT / "README.md").read_text()
+    block = re.search(r"Set up and run the tests.*?```bash\n(.*?)\n```", readme, re.S).group(1).strip()
+    ci = [ln for ln in (ROOT / ".ci" / "run").read_text().splitlines() if ln.startswith("python3 -m venv")]
+    assert ci == [block]
+    assert "ruff check ." in block and "pytest" in block

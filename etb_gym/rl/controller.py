@@ -21,7 +21,7 @@ class RLController:
     """A trained policy under the controller protocol (``name``, ``dt``, ``reset(seed)``, ``act(obs) -> duty``).
 
     ``RLController(path)``: a run folder (``model.zip`` + ``config.json``) or a policy zip with ``config.json``
-    beside it. The controller rebuilds the training features (:class:`~etb_gym.rl_task.PolicyFeatures`) from
+    beside it. The controller rebuilds the training features (:class:`~etb_gym.rl.task.PolicyFeatures`) from
     the observation stream, applies the saved VecNormalize statistics if the run used them, asks the policy
     for a deterministic duty every ``action_repeat`` periods and holds it in between."""
 
