@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import inspect
+import os
 import sys
 
 # name -> (module, one line for ``etb-gym --help``, script that did the job before it moved into the package)
@@ -99,6 +100,11 @@ def main(argv=None) -> int:
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:
         ap.error(f"unknown command {name!r}: valid are {', '.join(COMMANDS)}")
+    # The command owns its process: let numba's OpenMP pool sleep, not spin, between parallel regions (on a
+    # shared machine a spinning thread steals its partner's core, docs/speed.md), unless the user chose.
+    # Library imports leave the environment alone; this is set before any subcommand imports numba.
+    if not any(k in os.environ for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "NUMBA_THREADING_LAYER")):
+        os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
     try:
         fn = resolve(name)
     except CommandUnavailable as exc:

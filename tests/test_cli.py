@@ -76,3 +76,18 @@ def test_console_script_runs_a_subcommand():
     r = subprocess.run([sys.executable, "-m", "etb_gym.cli", "reproduce", "--dpi", "5"], capture_output=True,
                        text=True, timeout=120)
     assert r.returncode == 2 and "usage: etb-gym reproduce" in r.stderr and "--dpi 5" in r.stderr
+
+
+def test_the_command_sets_a_sleeping_thread_pool_unless_the_user_chose(monkeypatch, tmp_path):
+    (tmp_path / "etb_probe_cmd3.py").write_text(
+        "import os\nseen = []\ndef main(argv=None):\n    seen.append(os.environ.get('OMP_WAIT_POLICY'))\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(cli.COMMANDS, "design", ("etb_probe_cmd3", "x", None))
+    for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "NUMBA_THREADING_LAYER"):
+        monkeypatch.delenv(k, raising=False)
+    assert cli.main(["design"]) == 0
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    assert cli.main(["design"]) == 0
+    import etb_probe_cmd3
+
+    assert etb_probe_cmd3.seen == ["PASSIVE", "ACTIVE"]
