@@ -197,3 +197,78 @@ def test_task_wrappers_on_gym_make_envs_equal_the_native_vector_env():
             ends += 1
             np.testing.assert_array_equal(ra[4]["final_obs"], rb[4]["final_obs"])
     assert ends == 2 and fa.shape == (2, 12)
+
+
+# ------------------------------------------------------------------------------------------------ fuzzing
+def _hp_values():
+    from hypothesis import strategies as st
+
+    return st.one_of(st.integers(-3, 5000), st.floats(allow_nan=True, allow_infinity=True, width=32),
+                     st.booleans(), st.sampled_from(["abc", "auto", "auto_0.1", "", "1e-3", "[64]"]),
+                     st.lists(st.integers(-2, 64), max_size=3), st.none())
+
+
+@pytest.mark.parametrize("algo", ["sac", "ppo"])
+def test_fuzzed_hp_values_are_rejected_with_a_sentence_or_build_a_model(algo, tmp_path):
+    """Every --hp value either fails validation with a sentence naming it, or SB3 builds the model with it:
+    nothing invalid slips through to fail deep inside SB3 or torch."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from etb_gym.rl import ALGORITHMS, make_model
+    from etb_gym.rl.vecenv import make_training_env
+
+    keys = sorted(set(ALGORITHMS[algo]["defaults"]) | {"utd", "ent_coef", "max_grad_norm"} - {"n_steps"})
+    stats = {"rejected": 0, "built": 0}
+
+    @settings(max_examples=40, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+    @given(key=st.sampled_from(keys), value=_hp_values())
+    def check(key, value):
+        hp = {"n_steps": 64} if algo == "ppo" else {"buffer_size": 5000}      # small models, quick to build
+        hp[key] = value
+        cfg = RunConfig(algo=algo, n_envs=2, hyperparams=hp, task={"episode_s": 0.1})
+        try:
+            cfg.validate()
+        except ValueError as exc:
+            msg = str(exc)
+            assert msg.startswith("--hp ") and "Traceback" not in msg and "np." not in msg
+            stats["rejected"] += 1
+            return
+        env = make_training_env(cfg)
+        try:
+            make_model(cfg, env, None)
+        finally:
+            env.close()
+        stats["built"] += 1
+
+    check()
+    assert stats["rejected"] >= 5 and stats["built"] >= 2, stats
+
+
+def test_fuzzed_checkpoint_damage_is_always_refused_by_name(two_checkpoints, tmp_path):
+    """Random truncations and byte flips of every checkpoint file: each resume is refused with a sentence
+    naming the damaged file, and the run folder is left as it was."""
+    rng = random.Random(1)
+    files = ["ckpt_320.zip", "ckpt_320_replay_buffer.pkl", "latest.json", "ckpt_320.json"]
+    for k in range(16):
+        run = tmp_path / f"run{k}"
+        shutil.copytree(two_checkpoints, run)
+        target = run / "checkpoints" / files[k % len(files)]
+        data = bytearray(target.read_bytes())
+        if k % 2:
+            data = data[:rng.randrange(0, len(data))]
+        else:
+            i = rng.randrange(len(data))
+            data[i] ^= 1 << rng.randrange(8)
+        target.write_bytes(bytes(data))
+        before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+        try:
+            entry = __import__("etb_gym.rl.checkpoints", fromlist=["Checkpoints"]).Checkpoints(
+                run, "ETB-3B-v0", "sac").resume_entry()
+        except CheckpointError as exc:
+            msg = str(exc)
+            assert target.name in msg or "latest.json" in msg, msg
+            assert "--checkpoint ckpt_" in msg or "--force" in msg
+        else:       # a flipped byte inside ckpt_320.json / latest.json that keeps it a valid, matching entry
+            assert target.suffix == ".json" and entry["model"] == "ckpt_320.zip"
+        assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
