@@ -8,8 +8,7 @@ from pathlib import Path
 import pytest
 
 from etb_gym import bench_report
-from etb_gym.benchmark import (CSV_COLUMNS, SCENARIOS, VARIANTS, Job, make_jobs, metrics, read_results, run_sweep,
-                               simulate)
+from etb_gym.benchmark import (CSV_COLUMNS, SCENARIOS, VARIANTS, make_jobs, metrics, read_results, run_sweep)
 
 REQUIRED = ("controller", "scenario", "variant", "seed", "rise_time_s", "settling_time_s", "overshoot_pct",
             "steady_state_error_deg", "rms_error_deg", "peak_current_A", "duty_total_variation")

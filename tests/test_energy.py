@@ -1,5 +1,4 @@
 """Conservation and equilibrium checks against analytic results (not against the model itself)."""
-import math
 
 import numpy as np
 import pytest

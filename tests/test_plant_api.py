@@ -1,13 +1,11 @@
 """Plant API, plain vs fast path, bad input (issue 2, items 6 and 9)."""
 import math
-import warnings
 
 import numpy as np
 import pytest
 
 from etb_gym import MODELS, Plant, make_plant
-from etb_gym.components import (EndStops, InductanceTable, LimpHomeSpring, LinearDrive, LuGreFriction,
-                                NonlinearInductanceDrive)
+from etb_gym.components import (InductanceTable, NonlinearInductanceDrive)
 from etb_gym.components.base import Component, Params
 from etb_gym.integrate import FastPathUnavailableWarning
 

@@ -1,5 +1,5 @@
-"""scripts/reproduce_paper.py: runs as a CLI and writes valid, non-blank PNGs plus figures.md."""
-import importlib.util
+"""etb-gym reproduce (etb_gym.paper; scripts/reproduce_paper.py wraps it): runs as a CLI and writes valid,
+non-blank PNGs plus figures.md."""
 import re
 import struct
 import subprocess
@@ -40,11 +40,9 @@ def generated(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def script_main():
-    spec = importlib.util.spec_from_file_location("reproduce_paper", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault(spec.name, mod)   # dataclasses look their module up there
-    spec.loader.exec_module(mod)
-    return mod.main
+    from etb_gym.paper import main
+
+    return main
 
 
 def test_all_figures_written_as_valid_pngs(generated):
@@ -101,6 +99,6 @@ def test_committed_figures_are_small():
     folder = ROOT / "docs" / "figures" / "paper"
     for name in PNGS.values():
         path = folder / name
-        assert path.is_file(), f"{path} is not committed; run scripts/reproduce_paper.py --out docs/figures/paper"
+        assert path.is_file(), f"{path} is not committed; run etb-gym reproduce --out docs/figures/paper"
         png_size(path)
         assert path.stat().st_size < 200_000, (name, path.stat().st_size)

@@ -4,8 +4,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import sys
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -15,10 +13,10 @@ pytest.importorskip("stable_baselines3")
 
 from etb_gym.controllers import make_controller  # noqa: E402
 from etb_gym.rl import RLController, RunConfig, TrainingInterrupted, read_config, train  # noqa: E402
-from etb_gym.rl_task import FEATURE_NAMES, PolicyFeatures, TaskConfig, TrainingVecEnv, draw_reference  # noqa: E402
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-import train_rl  # noqa: E402
+from etb_gym.rl.task import FEATURE_NAMES, PolicyFeatures, TaskConfig, draw_reference  # noqa: E402
+from etb_gym.rl.train import main as train_main  # noqa: E402
+from etb_gym.rl.vecenv import training_vec_env  # noqa: E402
+from etb_gym.rl.wrappers import BaseControllerDuty  # noqa: E402
 
 FAST_HP = {"learning_starts": 64, "buffer_size": 2_000, "batch_size": 32, "net_arch": [16, 16]}
 
@@ -161,7 +159,7 @@ def test_training_references_cover_the_benchmark_kinds():
 
 
 def test_training_vec_env_truncates_in_step_and_resets():
-    env = TrainingVecEnv("ETB-3B-v0", 2, TaskConfig(episode_s=0.01), seed=0)
+    env = training_vec_env("ETB-3B-v0", 2, TaskConfig(episode_s=0.01), seed=0)
     obs = env.reset()
     assert obs.shape == (2, len(FEATURE_NAMES))
     for k in range(5):
@@ -171,18 +169,18 @@ def test_training_vec_env_truncates_in_step_and_resets():
     assert infos[0]["terminal_observation"].shape == (len(FEATURE_NAMES),)
     env.close()
     with pytest.raises(ValueError, match="multiple of task.action_repeat"):
-        TrainingVecEnv("ETB-3B-v0", 1, TaskConfig(episode_s=0.003, action_repeat=2))
+        training_vec_env("ETB-3B-v0", 1, TaskConfig(episode_s=0.003, action_repeat=2))
 
 
 # ------------------------------------------------------------------------------------------------ bad input
 def test_cli_rejects_unknown_algo_and_env(capsys, tmp_path):
     with pytest.raises(SystemExit):
-        train_rl.main(["--algo", "dqn", "--out", "x"])
+        train_main(["--algo", "dqn", "--out", "x"])
     assert "unknown algorithm 'dqn'" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        train_rl.main(["--env", "ETB-9Z-v0", "--out", "x"])
+        train_main(["--env", "ETB-9Z-v0", "--out", "x"])
     assert "unknown env 'ETB-9Z-v0'" in capsys.readouterr().err
-    assert train_rl.main(["--randomize", '{"friction_scale": [0.4, 1.6], "mass": [1, 2]}', "--out",
+    assert train_main(["--randomize", '{"friction_scale": [0.4, 1.6], "mass": [1, 2]}', "--out",
                           str(tmp_path / "r")]) == 2
     assert "unknown quantity 'mass'" in capsys.readouterr().err and not (tmp_path / "r").exists()
     cfg = RunConfig(randomize={"friction_scale": [0.4, 1.6]}).validate()
@@ -193,26 +191,26 @@ def test_existing_output_needs_force(tmp_path, capsys, smoke_run):
     other = tmp_path / "notes"
     other.mkdir()
     (other / "keep.txt").write_text("mine")
-    assert train_rl.main(["--out", str(other), "--timesteps", "10", "--no-progress"]) == 2
+    assert train_main(["--out", str(other), "--timesteps", "10", "--no-progress"]) == 2
     assert "--force" in capsys.readouterr().err
-    assert train_rl.main(["--out", str(other), "--force", "--timesteps", "10", "--no-progress"]) == 2
+    assert train_main(["--out", str(other), "--force", "--timesteps", "10", "--no-progress"]) == 2
     assert "not an RL run folder" in capsys.readouterr().err and (other / "keep.txt").read_text() == "mine"
     out, _ = smoke_run
     before = (out / "model.zip").read_bytes()
-    assert train_rl.main(["--out", str(out), "--timesteps", "10", "--no-progress"]) == 2
+    assert train_main(["--out", str(out), "--timesteps", "10", "--no-progress"]) == 2
     assert (out / "model.zip").read_bytes() == before
 
 
 def test_resume_errors_are_clear(tmp_path, capsys, smoke_run):
     out, _ = smoke_run
-    assert train_rl.main(["--resume", str(tmp_path / "nope"), "--no-progress"]) == 2
+    assert train_main(["--resume", str(tmp_path / "nope"), "--no-progress"]) == 2
     assert "no such run folder" in capsys.readouterr().err
-    assert train_rl.main(["--resume", str(out), "--env", "ETB-1A-v0", "--no-progress"]) == 2
+    assert train_main(["--resume", str(out), "--env", "ETB-1A-v0", "--no-progress"]) == 2
     assert "incompatible checkpoint" in capsys.readouterr().err
     bare = tmp_path / "bare"
     bare.mkdir()
     (bare / "config.json").write_text((out / "config.json").read_text())
-    assert train_rl.main(["--resume", str(bare), "--no-progress"]) == 2
+    assert train_main(["--resume", str(bare), "--no-progress"]) == 2
     assert "no checkpoint to resume from" in capsys.readouterr().err
 
 
@@ -231,7 +229,7 @@ def test_rl_prefix_errors_name_the_problem(tmp_path, smoke_run):
         make_controller(f"rl:{wrong}")
     with pytest.raises(ValueError, match="unknown algorithm"):
         RunConfig(algo="a2c").validate()
-    with pytest.raises(ValueError, match="'learning_starts' is not understood by ppo"):
+    with pytest.raises(ValueError, match="'learning_starts' is not a hyperparameter of ppo"):
         RunConfig(algo="ppo", hyperparams={"learning_starts": 10}).validate()
 
 
@@ -285,17 +283,21 @@ def test_residual_smoke_run_records_the_base_controller(residual_run):
     assert d["task"]["residual"] == "smc" and d["task"]["residual_scale"] == 0.3
     assert d["features"] == list(FEATURE_NAMES) + ["base_duty"]
     assert model.observation_space.shape == (len(FEATURE_NAMES) + 1,)
-    env = TrainingVecEnv("ETB-3B-v0", 2, TaskConfig(episode_s=0.01, residual="pid"), seed=0)
+    env = training_vec_env("ETB-3B-v0", 2, TaskConfig(episode_s=0.01, residual="pid"), seed=0)
     obs = env.reset()
     assert obs.shape == (2, len(FEATURE_NAMES) + 1)
-    applied, step = [], env.venv.step
+    layer = env.venv
+    while not isinstance(layer, BaseControllerDuty):
+        layer = layer.env
+    base, plant_env = layer.base, env.venv.unwrapped
+    applied, step = [], plant_env.step
 
     def record(a):                                        # the duty sent to the plant vs the base's duty
-        applied.append((np.asarray(a, float).ravel().copy(), env.base.duty.copy()))
+        applied.append((np.asarray(a, float).ravel().copy(), base.duty.copy()))
         return step(a)
 
-    env.venv.step = record
-    np.testing.assert_array_equal(obs[:, -1], env.base.duty.astype(np.float32))
+    plant_env.step = record
+    np.testing.assert_array_equal(obs[:, -1], base.duty.astype(np.float32))
     _, rew, _, _ = env.step(np.zeros((2, 1)))             # zero residual: the applied duty is the base duty
     _, rew2, _, _ = env.step(np.ones((2, 1)))             # full residual: base + 0.3, clipped
     assert len(applied) == 4 and np.all(rew <= 0) and np.all(rew2 < 0)
@@ -338,12 +340,12 @@ def test_residual_bad_input_names_the_option(capsys, tmp_path):
     with pytest.raises(ValueError, match="task.residual_scale = 0 is invalid"):
         TaskConfig(residual="pid", residual_scale=0)
     with pytest.raises(SystemExit):
-        train_rl.main(["--residual", "lqr", "--out", str(tmp_path / "r")])
+        train_main(["--residual", "lqr", "--out", str(tmp_path / "r")])
     assert "--residual 'lqr': unknown base controller; valid are pid, pid-plain, smc" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        train_rl.main(["--residual", "smc", "--residual-scale", "3", "--out", str(tmp_path / "r")])
+        train_main(["--residual", "smc", "--residual-scale", "3", "--out", str(tmp_path / "r")])
     assert "--residual-scale 3.0: expected a duty range in (0, 2]" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        train_rl.main(["--residual-scale", "0.2", "--out", str(tmp_path / "r")])
+        train_main(["--residual-scale", "0.2", "--out", str(tmp_path / "r")])
     assert "--residual-scale needs --residual BASE" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()

@@ -174,15 +174,22 @@ def _json_safe(o):
     return o
 
 
-def plots(result, out: Path) -> list[str]:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def _figure(figsize):
+    """A figure on its own Agg canvas: no pyplot state, no backend switch for the caller's process."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
+    fig = Figure(figsize=figsize)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def plots(result, out: Path) -> list[str]:
     files = []
     data = result.data
     n = len(data.recs)
-    fig, axes = plt.subplots(n, 1, figsize=(10, 2.8 * n), squeeze=False)
+    fig = _figure((10, 2.8 * n))
+    axes = fig.subplots(n, 1, squeeze=False)
     for ax, rd, r0, r1 in zip(axes[:, 0], data.recs, result.residual_before, result.residual_after):
         t = rd.rec.t_s
         for a, b in result.report["mismatch_windows_s"][rd.rec.name]:
@@ -199,13 +206,13 @@ def plots(result, out: Path) -> list[str]:
     fig.tight_layout()
     p = out / "residual_time.png"
     write_atomic(p, lambda fh: fig.savefig(fh, dpi=110, format="png"))
-    plt.close(fig)
     files.append(p.name)
 
     before = {r["regime"]: r for r in result.report["regimes_before"]}
     after = {r["regime"]: r for r in result.report["regimes_after"]}
     keys = list(before)
-    fig, ax = plt.subplots(figsize=(8, 0.32 * len(keys) + 1.2))
+    fig = _figure((8, 0.32 * len(keys) + 1.2))
+    ax = fig.subplots()
     y = np.arange(len(keys))
     ax.barh(y - 0.2, [before[k]["rms_deg"] for k in keys], 0.4, label="calibrated nominal model")
     ax.barh(y + 0.2, [after[k]["rms_deg"] if k in after else 0 for k in keys], 0.4, label="with the added effects")
@@ -218,13 +225,13 @@ def plots(result, out: Path) -> list[str]:
     fig.tight_layout()
     p = out / "residual_regimes.png"
     write_atomic(p, lambda fh: fig.savefig(fh, dpi=110, format="png"))
-    plt.close(fig)
     files.append(p.name)
 
     rd = data.recs[0]
     pred0 = simulate(*result.nominal_fit.spec.build(result.nominal_fit.x), data)[0][0]
     pred1 = simulate(result.plant, result.sensor, data)[0][0]
-    fig, ax = plt.subplots(figsize=(10, 3))
+    fig = _figure((10, 3))
+    ax = fig.subplots()
     ax.plot(rd.rec.t_s, rd.rec.angle_deg, "k", lw=0.8, label="recorded")
     ax.plot(rd.rec.t_s, pred0, lw=0.7, label="calibrated nominal model")
     ax.plot(rd.rec.t_s, pred1, lw=0.7, ls="--", label="with the added effects")
@@ -235,7 +242,6 @@ def plots(result, out: Path) -> list[str]:
     fig.tight_layout()
     p = out / "angle_fit.png"
     write_atomic(p, lambda fh: fig.savefig(fh, dpi=110, format="png"))
-    plt.close(fig)
     files.append(p.name)
     return files
 

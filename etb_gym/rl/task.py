@@ -2,9 +2,10 @@
 
 One implementation serves training and deployment: :class:`PolicyFeatures` turns the env's observation
 stream (``etb_gym.envs.observation``: sensed angle, reference, error, last duty) into the policy input, both
-inside :class:`TrainingVecEnv` (N sub-envs of the native :class:`~etb_gym.envs.vector.ETBVectorEnv`) and
-inside the deployed controller (``etb_gym.rl.RLController``, N = 1), so the policy sees the same numbers in
-the benchmark as in training.
+inside the training wrappers (:mod:`etb_gym.rl.wrappers`, N sub-envs of ``gym.make_vec(env_id)``) and inside
+the deployed controller (:class:`etb_gym.rl.controller.RLController`, N = 1), so the policy sees the same
+numbers in the benchmark as in training. This module holds the pieces (no Gymnasium or SB3 imports); the
+wrappers compose them around the registered env.
 
 Features (all updated every 1 ms control period from the observation, read at decision times)::
 
@@ -39,7 +40,7 @@ The base keeps its integral action and its stability margins; the policy learns 
 robustness. The policy input gets one more feature, ``base_duty`` (the base controller's duty for the coming
 period), the rate penalty acts on the residual residual_scale * (a - a_prev), and ``w_residual a^2`` is
 subtracted from the reward so the residual stays at zero where it does not help. With a residual the
-policy's mean output starts at exactly zero (etb_gym.rl zeroes its output layer), so the untrained agent
+policy's mean output starts at exactly zero (etb_gym.rl.config.zero_policy_mean zeroes its output layer), so the untrained agent
 is the base controller. Training references (:func:`draw_reference`) chain
 large steps, small steps anywhere (incl. 40 deg), small steps across limp-home and ramps, from a plate at
 rest at a drawn angle, so every benchmark scenario type appears in training.
@@ -51,7 +52,6 @@ from dataclasses import asdict, dataclass, fields
 from typing import Mapping
 
 import numpy as np
-from stable_baselines3.common.vec_env import VecEnv
 
 from etb_gym.controllers.base import VelocityEstimator
 from etb_gym.envs import observation as obsmod
@@ -271,126 +271,3 @@ class BaseControllers:
 def apply_residual(base_duty, action, task: TaskConfig):
     """duty = clip(d_base + residual_scale * a, -1, 1) (module docstring)."""
     return np.clip(np.asarray(base_duty) + task.residual_scale * np.asarray(action), -1.0, 1.0)
-
-
-# ------------------------------------------------------------------------------------------------ vec env
-class TrainingVecEnv(VecEnv):
-    """An SB3 VecEnv over the native :class:`~etb_gym.envs.vector.ETBVectorEnv` (``gym.make_vec`` with the id's
-    vector entry point): features, action repeat, training reward and references of the module docstring.
-
-    Episodes of all sub-envs end together after ``task.episode_s`` (a multiple of the decision period); a
-    finished sub-env is reset at once (SB3's convention: ``infos[i]["terminal_observation"]``,
-    ``"TimeLimit.truncated": True``, so off-policy algorithms bootstrap through the time limit)."""
-
-    def __init__(self, env_id: str, n_envs: int, task: TaskConfig, seed: int = 0, randomize=False,
-                 env_kwargs: Mapping | None = None):
-        import gymnasium as gym
-        from gymnasium import spaces
-
-        import etb_gym.envs  # noqa: F401  (registers the ids)
-
-        self.env_id, self.task = env_id, task
-        self.venv = gym.make_vec(env_id, num_envs=int(n_envs), vectorization_mode="vector_entry_point",
-                                 episode_s=task.episode_s, randomize=randomize, **dict(env_kwargs or {}))
-        base = self.venv.env
-        self.dt = base.dt
-        steps = round(task.episode_s / self.dt)
-        if steps % task.action_repeat:
-            raise ValueError(f"task.episode_s = {task.episode_s} s is {steps} control periods: expected a multiple "
-                             f"of task.action_repeat = {task.action_repeat}")
-        self.render_mode = None
-        obs_space = spaces.Box(-np.inf, np.inf, (len(feature_names(task)),), np.float32)
-        super().__init__(int(n_envs), obs_space, spaces.Box(-1.0, 1.0, (1,), np.float32))
-        self.features = PolicyFeatures(self.num_envs, self.dt, task)
-        self.rng = np.random.default_rng(seed)
-        self._seed = seed
-        self._actions = np.zeros(self.num_envs)
-        self._prev = np.zeros(self.num_envs)
-        self.base = BaseControllers(task.residual, env_id, self.num_envs) if task.residual else None
-
-    def _features(self):
-        return self.features.value(None if self.base is None else self.base.duty)
-
-    # -- episodes
-    def _start(self, rows):
-        """Reset ``rows`` one by one with their own drawn reference and initial angle."""
-        N = self.num_envs
-        obs = None
-        for i in rows:
-            ref, a0 = draw_reference(self.rng, self.task.episode_s, self.dt)
-            mask = np.zeros(N, bool)
-            mask[i] = True
-            obs, _ = self.venv.reset(options={"reset_mask": mask, "reference": ref, "angle_deg": a0})
-        rows = np.asarray(rows)
-        self.features.reset_rows(rows, obs[rows])
-        if self.base is not None:
-            self.base.reset_rows(rows, obs[rows])
-        self._prev[rows] = 0.0
-
-    def reset(self):
-        seed = self._seeds[0] if any(s is not None for s in self._seeds) else self._seed
-        self.rng = np.random.default_rng(seed)
-        self.venv.reset(seed=int(seed))
-        self._start(range(self.num_envs))
-        self._reset_seeds()
-        self._reset_options()
-        return self._features()
-
-    def step_async(self, actions):
-        a = np.asarray(actions, dtype=np.float64).reshape(self.num_envs)
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"actions {a}: expected finite duty cycles")
-        self._actions = np.clip(a, -1.0, 1.0)
-
-    def step_wait(self):
-        task, k = self.task, self.task.action_repeat
-        cost = np.zeros(self.num_envs)
-        act = self._actions.reshape(-1, 1)
-        for j in range(k):
-            if self.base is not None:
-                act = apply_residual(self.base.duty, self._actions, task).reshape(-1, 1)
-            obs, _, _, trunc, info = self.venv.step(act)
-            self.features.update(obs)
-            if self.base is not None:
-                self.base.update(obs)
-            cost += tracking_cost(info["reference_deg"] - info["angle_deg"], task)
-            if trunc.any() and (j < k - 1 or not trunc.all()):
-                raise RuntimeError("sub-env episodes fell out of step with the decision period")
-        dd = self._actions - self._prev
-        if self.base is None:
-            rewards = -(cost / k) - task.w_rate * (0.5 * dd) ** 2
-        else:               # the rate penalty on the residual duty, plus the residual's magnitude penalty
-            rewards = (-(cost / k) - task.w_rate * (0.5 * task.residual_scale * dd) ** 2
-                       - task.w_residual * self._actions ** 2)
-        rewards = rewards.astype(np.float32)
-        self._prev = self._actions.copy()
-        feats = self._features()
-        dones = np.asarray(trunc, bool).copy()
-        infos = [{} for _ in range(self.num_envs)]
-        if dones.any():
-            rows = np.flatnonzero(dones)
-            for i in rows:
-                infos[i]["terminal_observation"] = feats[i].copy()
-                infos[i]["TimeLimit.truncated"] = True
-            self._start(rows)
-            feats = self._features()
-        return feats, rewards, dones, infos
-
-    # -- the rest of the VecEnv API
-    def close(self):
-        self.venv.close()
-
-    def get_attr(self, attr_name, indices=None):
-        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
-
-    def set_attr(self, attr_name, value, indices=None):
-        setattr(self, attr_name, value)
-
-    def env_method(self, method_name, *args, indices=None, **kwargs):
-        return [getattr(self, method_name)(*args, **kwargs) for _ in self._get_indices(indices)]
-
-    def env_is_wrapped(self, wrapper_class, indices=None):
-        return [False for _ in self._get_indices(indices)]
-
-    def get_images(self):
-        raise NotImplementedError("the training vec env does not render; use gym.make(id, render_mode=...)")
