@@ -111,3 +111,5 @@ def main(argv=None) -> int:
     return _call(fn, name, rest)
 
 
+if __name__ == "__main__":
+    sys.exit(main())
