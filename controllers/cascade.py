@@ -355,6 +355,8 @@ class PTOSController(CascadeController):
                  integral_V_per_rad_s: float = 3300.0, integral_zone_deg: float = 1.0, integral_limit_V: float = 3.0,
                  **kw):
         own = type(self).__name__
+        kw.setdefault("friction_compensation", 1.0)      # full nominal friction level, linear within 0.12 deg
+        kw.setdefault("friction_zone_deg", 0.12)
         self.Kp = check_gain(own, "position_gain_rad_s", position_gain_rad_s, positive=True)
         self.Kv = check_gain(own, "velocity_gain_V_s_per_rad", velocity_gain_V_s_per_rad, non_negative=True)
         self.alpha = check_gain(own, "alpha", alpha, positive=True, upper=1.0001)

@@ -3,7 +3,7 @@
 
     python scripts/train_rl.py --env ETB-3B-v0 --timesteps 200000 --out runs/sac_3b            # SAC, 8 sub-envs
     python scripts/train_rl.py --algo ppo --n-envs 16 --randomize --out runs/ppo_3b
-    python scripts/train_rl.py --residual smc --residual-scale 0.3 --randomize --out runs/res_3b   # residual RL
+    python scripts/train_rl.py --residual smc-plain --residual-scale 0.3 --randomize --out runs/res_3b   # residual RL
     python scripts/train_rl.py --resume runs/sac_3b                  # continue an interrupted run (Ctrl-C saves)
     python scripts/train_rl.py --resume runs/sac_3b --timesteps 400000        # ... or extend a finished one
     python scripts/benchmark.py --controller rl:runs/sac_3b --controller pid --controller smc
@@ -66,7 +66,7 @@ def parse_args(argv=None):
     p.add_argument("--episode-s", type=float, default=None, help="training episode length in s (default 1.5)")
     p.add_argument("--residual", default=None, metavar="BASE",
                    help="residual RL: the policy's action is a bounded correction added to the duty of this classical "
-                        "base controller (pid, pid-plain or smc, designed on the env's nominal model); default: none, "
+                        "base controller (pid-plain, smc-plain or pid-nocomp: angle-only, designed on the env's nominal model); default: none, "
                         "the policy outputs the duty")
     p.add_argument("--residual-scale", type=float, default=None, metavar="DUTY",
                    help="with --residual: duty = clip(base + SCALE * action, -1, 1), SCALE in (0, 2] (default 0.3)")
