@@ -43,7 +43,7 @@ def test_every_controller_declares_what_it_reads():
 def test_cascade_positions_the_plate_at_low_battery_and_hot_coil(name):
     ctrl = make_controller(name)
     nominal = run(ctrl, 10.0, 60.0)
-    assert abs(nominal[-1] - 60.0) < 0.1 and np.max(nominal) < 60.0 + 2.0      # < 4 % overshoot
+    assert abs(nominal[-1] - 60.0) < 0.1 and np.max(nominal) < 60.0 + 2.5      # < 5 % overshoot
     # 9 V into a 125 C coil: 5 A at most, enough to hold 40 deg (not 60 deg) against springs and friction
     hot = run(ctrl, 10.0, 40.0, supply_V=9.0, params={"drive.resistance_ohm": 1.25 * 1.41})
     assert abs(hot[-1] - 40.0) < 0.1
