@@ -15,9 +15,8 @@ coil current and the battery voltage. The chain, every control period (radians, 
 The current feedback is the damping of the electro-mechanical mode: K_c acts as a virtual series resistance,
 so the rotor no longer rings with the coil through the back-EMF as lightly (``etb-gym design``: at 13 deg
 220 rad/s with damping 0.20 under voltage drive, 0.36 with K_c = 1.5 V/A; at 80 deg 0.28 -> 0.57). The
-default outer laws (``velocity_mode``) command a plate speed, the coil being a velocity source while the plate
-slides (omega ~ (u - R i)/k); ``velocity_mode = False`` gives the torque form J phi'' = tau_outer with the
-loads fed forward:
+outer laws command a plate speed, the coil being a velocity source while the plate slides
+(omega ~ (u - R i)/k):
 
 * ``pid`` (:class:`CascadePID`): v_cmd = v_r + K_p e + I / k, I' = K_i e in a zone;
 * ``smc`` (:class:`CascadeSMC`): v_cmd = v_r + K sat((lambda e + k_0 sigma)/Phi) with the conditional
@@ -149,15 +148,14 @@ class TrajectoryGenerator:
 
 
 class CascadeController(BaseController):
-    """The shared ECU chain of the module docstring; subclasses supply :meth:`outer` (a torque [Nm])."""
+    """The shared ECU chain of the module docstring; subclasses supply :meth:`outer` (a plate speed [rad/s])."""
 
     reads = ("angle", "current", "supply")
     use_generator = True
-    velocity_mode = False
     Kv = 0.0
 
     def __init__(self, model=None, params: dict | None = None, *, dt: float | None = None,
-                 current_gain_V_per_A: float = 1.5, current_integral_per_s: float = 200.0,
+                 current_gain_V_per_A: float = 1.5,
                  velocity_cutoff_rad_s: float = 400.0, friction_zone_deg: float = 0.17,
                  rest_speed_rad_s: float = 0.5, speed_fraction: float = 0.85, accel_limit_rad_s2: float = 15000.0,
                  friction_filter_s: float = 0.00035, friction_compensation: float = 0.85, self_tuning: bool = True,
@@ -169,7 +167,6 @@ class CascadeController(BaseController):
         if name is not None:
             self.name = str(name)
         self.Kc = check_gain(own, "current_gain_V_per_A", current_gain_V_per_A, non_negative=True)
-        self.Kic = check_gain(own, "current_integral_per_s", current_integral_per_s, non_negative=True)
         self.friction_zone = math.radians(check_gain(own, "friction_zone_deg", friction_zone_deg, positive=True))
         self.rest_speed = check_gain(own, "rest_speed_rad_s", rest_speed_rad_s, non_negative=True)
         self.g_f = min(1.0, self.dt / max(check_gain(own, "friction_filter_s", friction_filter_s, non_negative=True), 1e-12))
@@ -190,9 +187,7 @@ class CascadeController(BaseController):
         self.V = None
         self.e_f = None
         self.moving = False
-        self.x_c = 0.0
         self.v_prev = 0.0
-        self.u_prev = 0.0
         self.reset_outer()
 
     def reset_outer(self) -> None:
@@ -246,22 +241,12 @@ class CascadeController(BaseController):
         self.V_now = V
         R = self.tuning.resistance_ohm
         i_max = V / R
-        if self.velocity_mode:
-            # the coil as a velocity source (u = R i + k omega): the outer law commands a plate speed
-            v_cmd = self.outer(e, y, v, r, v_r, a_r)
-            i_ref = _clip(self.load_torque(phi_ff, r_target - y, v, v_cmd) / k, -i_max, i_max)
-            di = i_ref - i_m
-            u = R * i_ref + k * v_cmd + self.Kv * (v_cmd - v) + self.Kc * di
-        else:
-            tau = self.load_torque(phi_ff, r_target - y, v, v_r) + self.outer(e, y, v, r, v_r, a_r)
-            i_ref = _clip(tau / k, -i_max, i_max)
-            di = i_ref - i_m
-            u = R * i_ref + k * v + self.Kc * di + self.x_c
+        # the coil as a velocity source (u = R i + k omega): the outer law commands a plate speed
+        v_cmd = self.outer(e, y, v, r, v_r, a_r)
+        i_ref = _clip(self.load_torque(phi_ff, r_target - y, v, v_cmd) / k, -i_max, i_max)
+        u = R * i_ref + k * v_cmd + self.Kv * (v_cmd - v) + self.Kc * (i_ref - i_m)
         u_sat = _clip(u, -V, V)
-        if u == u_sat or (u > V and di < 0) or (u < -V and di > 0):     # integrate only while not saturated
-            self.x_c = _clip(self.x_c + self.Kic * self.dt * self.Kc * di, -0.2 * V, 0.2 * V)
         self.saturated = u != u_sat
-        self.u_prev = u_sat
         return u_sat / V
 
 
@@ -274,7 +259,6 @@ class CascadePID(CascadeController):
     the derivative action is the inner speed feedback K_v (v_cmd - v_hat) of the velocity-source chain."""
 
     name = "pid"
-    velocity_mode = True
 
     def __init__(self, model=None, params: dict | None = None, *, position_gain_rad_s: float = 118.0,
                  velocity_gain_V_s_per_rad: float = 0.0032, integral_V_per_rad_s: float = 1860.0,
@@ -310,7 +294,6 @@ class CascadeSMC(CascadeController):
     reaching phase); ``k0_rad_s``: conditional-integrator rate (zero steady-state error)."""
 
     name = "smc"
-    velocity_mode = True
 
     def __init__(self, model=None, params: dict | None = None, *, lambda_rad_s: float = 109.0,
                  K_rad_s: float = 25.7, layer_rad_s: float | None = 18.3, k0_rad_s: float = 139.0,
@@ -350,7 +333,6 @@ class PTOSController(CascadeController):
 
     name = "ptos"
     use_generator = False
-    velocity_mode = True
 
     def __init__(self, model=None, params: dict | None = None, *, position_gain_rad_s: float = 300.0,
                  velocity_gain_V_s_per_rad: float = 0.014, alpha: float = 0.56, dead_time_s: float = 0.0004,
