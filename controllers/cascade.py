@@ -42,7 +42,7 @@ boxes, so no estimate can wind up:
   [0.3, 2.0], theta_s in [0.6, 1.5].
 
 Cost per act(): 46 us (ptos), 64 us (pid), 53 us (smc) in CPython on the shared 2-core machine (median of 7 x
-500 calls, load ~10; ``tests/test_cascade.py::test_cascade_cost_per_step`` bounds it at 200 us), far inside the
+500 calls, load ~10; ``tests/test_cascade.py::test_cascade_cost_per_step`` checks the 1 ms bound), far inside the
 1 ms control period.
 """
 from __future__ import annotations

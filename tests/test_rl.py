@@ -333,7 +333,7 @@ def test_residual_round_trip_rebuilds_the_base_controller(residual_run):
 
 
 def test_residual_bad_input_names_the_option(capsys, tmp_path):
-    with pytest.raises(ValueError, match=r"task.residual = 'lqr' is invalid: .*\['pid', 'pid-plain', 'smc'\]"):
+    with pytest.raises(ValueError, match=r"task.residual = 'lqr' is invalid: .*\['pid-nocomp', 'pid-plain', 'smc-plain'\]"):
         TaskConfig(residual="lqr")
     with pytest.raises(ValueError, match="task.residual_scale = 0 is invalid"):
         TaskConfig(residual="pid-plain", residual_scale=0)
