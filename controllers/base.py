@@ -9,12 +9,13 @@ Protocol (used by the benchmark, the examples and the RL policy adapter)::
 
 A controller sees exactly what the env observes: the observation vector of
 ``etb_gym.envs.observation`` (sensed angle, reference, error, last duty, and the coil current only when
-the env was made with ``observe_current=True``). Nothing else: the plate velocity is *estimated* by
+the env was made with ``observe_current=True``, the battery voltage with ``observe_supply=True``; a
+controller declares what it reads in ``reads``). Nothing else: the plate velocity is *estimated* by
 :class:`VelocityEstimator` from the sensed angle.
 
 Factory::
 
-    make_controller("pid")                      built-in names, see CONTROLLERS
+    make_controller("pid")                      built-in names, see CONTROLLERS (register_controller)
     make_controller("smc", model="3B")          keyword arguments go to the constructor
     make_controller("my_pkg.ctrl:MyController") any importable class (or factory function)
     make_controller("rl:runs/ppo/model.zip")    a registered prefix (register_controller_prefix)
@@ -24,8 +25,6 @@ from __future__ import annotations
 import importlib
 import math
 from typing import Any, Callable, Protocol, runtime_checkable
-
-import numpy as np
 
 from etb_gym.envs.observation import Measurement, decode
 
@@ -91,6 +90,11 @@ class VelocityEstimator:
         self.y_prev = y
         return self.v
 
+    def frequency_response(self, z):
+        """D(z) evaluated at ``z`` (array of points on the unit circle): the one formula of the estimator."""
+        a, T = self.a, self.dt
+        return (1 - a) * (1 - 1 / z) / (T * (1 - a / z))
+
     def transfer_function(self):
         import control
 
@@ -99,9 +103,14 @@ class VelocityEstimator:
 
 
 class BaseController:
-    """Shared plumbing: decoding, degree/radian edge, duty clamping, NaN guard."""
+    """Shared plumbing: decoding, degree/radian edge, duty clamping, NaN guard.
+
+    ``reads`` declares the sensors the controller uses besides the reference and its last duty: "angle"
+    always, "current" (env ``observe_current=True``) and "supply" (``observe_supply=True``). The benchmark
+    builds each controller's env with exactly these, and the observation is decoded accordingly."""
 
     name = "controller"
+    reads: tuple = ("angle",)
 
     def __init__(self, dt: float = 1e-3):
         self.dt = check_gain(type(self).__name__, "dt", dt, positive=True)
@@ -111,7 +120,8 @@ class BaseController:
 
     def measure(self, observation) -> tuple[float, float, Measurement]:
         """Decode an observation; returns (angle_rad, reference_rad, measurement)."""
-        m = observation if isinstance(observation, Measurement) else decode(observation)
+        m = observation if isinstance(observation, Measurement) else decode(
+            observation, observe_current="current" in self.reads, observe_supply="supply" in self.reads)
         return math.radians(m.angle_deg), math.radians(m.reference_deg), m
 
     def act(self, observation) -> float:
@@ -130,25 +140,20 @@ class BaseController:
 
 
 # ------------------------------------------------------------------------------------------------ factory
-def _builtin(name: str) -> Callable[..., Any]:
-    if name == "pid":
-        from .pid import PIDController
-        return PIDController
-    if name == "pid-plain":
-        from .pid import PIDController
-        return lambda **kw: PIDController(**{"friction_compensation": False, "limp_home_compensation": False,
-                                             "gain_scheduling": False, "name": "pid-plain", **kw})
-    if name == "smc":
-        from .smc import SlidingModeController
-        return SlidingModeController
-    raise KeyError(name)
+CONTROLLERS: dict[str, str] = {}                 # name -> one-line description (filled by register_controller)
+_FACTORIES: dict[str, Callable[..., Any]] = {}
 
 
-CONTROLLERS = {
-    "pid": "discrete PID, designed gains, limp-home + friction compensation, gain scheduling (controllers/pid.py)",
-    "pid-plain": "the same designed PID without limp-home/friction compensation and scheduling (ablation)",
-    "smc": "boundary-layer sliding mode with conditional integrator and model-based equivalent control (controllers/smc.py)",
-}
+def register_controller(name: str, factory: Callable[..., Any], description: str) -> None:
+    """Make ``make_controller(name, **kw)`` call ``factory(**kw)``. The built-in controllers register
+    themselves when their module is imported (``etb_gym.controllers`` imports them all)."""
+    if not isinstance(name, str) or not name or ":" in name:
+        raise ValueError(f"controller name {name!r} is invalid: expected a non-empty name without ':'")
+    if not callable(factory):
+        raise ValueError(f"controller {name!r}: factory must be callable, got {type(factory).__name__}")
+    _FACTORIES[name] = factory
+    CONTROLLERS[name] = str(description)
+
 
 _PREFIXES: dict[str, Callable[..., Any]] = {}
 
@@ -193,8 +198,8 @@ def make_controller(spec, **kw):
         raise ValueError(f"controller spec {spec!r} is invalid: expected a string ({_valid_specs()}) "
                          "or an object with name, dt, reset(seed) and act(observation)")
     s = spec.strip()
-    if s in CONTROLLERS:
-        ctrl = _builtin(s)(**kw)
+    if s in _FACTORIES:
+        ctrl = _FACTORIES[s](**kw)
     elif ":" in s:
         head, rest = s.split(":", 1)
         if head not in _PREFIXES and "." not in head:
@@ -222,8 +227,3 @@ def make_controller(spec, **kw):
         raise ValueError(f"controller spec {spec!r} built a {type(ctrl).__name__} without {missing}: "
                          "a controller needs name, dt, reset(seed) and act(observation)")
     return ctrl
-
-
-def duty_from_voltage(u_V: float, supply_V: float) -> float:
-    """The H-bridge duty that applies ``u_V`` from a ``supply_V`` battery (clamped to [-1, 1])."""
-    return float(np.clip(u_V / supply_V, -1.0, 1.0))

@@ -29,8 +29,10 @@ Discrete PID design (:func:`design_pid`)
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -38,7 +40,7 @@ from etb_gym import Plant, make_plant
 from etb_gym.components.friction import ViscousFriction
 
 from .base import VelocityEstimator, check_gain
-from .model import NominalModel, resolve_model
+from .model import NominalModel, model_for_key, resolve_model
 
 FRICTION_TREATMENTS = ("sliding", "presliding")
 
@@ -171,17 +173,14 @@ class PIDDesign:
                 f"presliding GM {20 * math.log10(self.presliding_gain_margin) if self.presliding_gain_margin > 0 and math.isfinite(self.presliding_gain_margin) else float('inf'):5.1f} dB")
 
 
-def _freq_resp(sys, w):
-    return complex(np.asarray(sys(np.exp(1j * w * sys.dt))).reshape(-1)[0])
-
-
-def _eval_tf(sys, z):
+def eval_tf(sys, z):
+    """A SISO transfer function evaluated at the points ``z``."""
     num = np.asarray(sys.num[0][0], float)
     den = np.asarray(sys.den[0][0], float)
     return np.polyval(num, z) / np.polyval(den, z)
 
 
-def _grid_margins(w, Lw):
+def grid_margins(w, Lw):
     """Gain margin, phase margin [deg] and gain crossover of a loop sampled on a frequency grid
     (fast screening; the chosen design is confirmed with control.stability_margins)."""
     mag = np.abs(Lw)
@@ -258,16 +257,15 @@ def design_pid(plant=None, phi0_rad: float | None = None, crossover_rad_s: float
     tried = []
     w = np.logspace(0, math.log10(0.999 * math.pi / T), 3000)
     zz = np.exp(1j * w * T)
-    Pw = _eval_tf(Pd, zz)
+    Pw = eval_tf(Pd, zz)
     Iw = T * zz / (zz - 1)
-    a = math.exp(-wf * T)
-    Dw = (1 - a) * (1 - 1 / zz) / (T * (1 - a / zz))
+    Dw = VelocityEstimator(T, wf).frequency_response(zz)
     for td in derivative_times_s:
         for wr in rolloff_cutoffs_rad_s:
-            Fw = _eval_tf(rolloff_tf(wr, T), zz)
+            Fw = eval_tf(rolloff_tf(wr, T), zz)
             Lw = (1 + (wc / ratio) * Iw + td * Dw) * Fw * Pw
             kp = 1.0 / abs(np.interp(wc, w, np.abs(Lw)))
-            gm, pm, wgc = _grid_margins(w, kp * Lw)
+            gm, pm, wgc = grid_margins(w, kp * Lw)
             tried.append(pm)
             if not (pm >= pm_min and abs(wgc - wc) < 0.05 * wc):
                 continue
@@ -311,7 +309,7 @@ def max_stable_gain(plant=None, phi0_rad: float | None = None, friction: str = "
 
 
 def describe_plant(plant=None, phi0_rad=None) -> str:
-    """Poles of both linearizations (printed by scripts/design_controllers.py)."""
+    """Poles of both linearizations (printed by ``etb-gym design``)."""
     out = []
     for fr in FRICTION_TREATMENTS:
         lin = linearize(plant, phi0_rad, fr)
@@ -320,3 +318,167 @@ def describe_plant(plant=None, phi0_rad=None) -> str:
                    f"poles [rad/s]: " + ", ".join(f"{q.real:.1f}{q.imag:+.1f}j" if abs(q.imag) > 1e-6 else f"{q.real:.1f}"
                                                   for q in p))
     return "\n".join(out)
+
+
+# ------------------------------------------------------------------------------------------------ cached designs
+@functools.lru_cache(maxsize=64)
+def scheduled_pid_designs(key: str, crossover: float, pm: float, ratio: float, wf: float, angles_deg: tuple):
+    """``design_pid`` at each scheduling angle of the model ``key`` (controllers.model.model_key), cached."""
+    nom = model_for_key(key)
+    return tuple(design_pid(nom.plant, math.radians(a), crossover_rad_s=crossover, phase_margin_deg=pm,
+                            integral_ratio=ratio, derivative_cutoff_rad_s=wf) for a in angles_deg)
+
+
+@functools.lru_cache(maxsize=64)
+def presliding_gain_limit(key: str, angle_deg: float) -> float:
+    """``max_stable_gain`` of the presliding plant of model ``key`` at ``angle_deg``, cached."""
+    return max_stable_gain(model_for_key(key).plant, math.radians(angle_deg), "presliding")
+
+
+@functools.lru_cache(maxsize=64)
+def smc_layer_gain(key: str, lam: float, wf: float, gm_db: float, pm_deg: float,
+                   angles_deg: tuple = (13.0, 40.0, 80.0)) -> float:
+    """Largest boundary-layer gain G = K/Phi [V s/rad] of the voltage-mode sliding-mode controller whose
+    linearized loop C = G (D(z) + lambda) + (R J / k) lambda D(z) keeps ``gm_db`` / ``pm_deg`` of margin at
+    every angle (grid search over G)."""
+    nom = model_for_key(key)
+    T = nom.control_period_s
+    w = np.logspace(0, math.log10(0.999 * math.pi / T), 3000)
+    zz = np.exp(1j * w * T)
+    Dw = VelocityEstimator(T, wf).frequency_response(zz)
+    plants = [eval_tf(linearize(nom.plant, math.radians(ang), "sliding").discrete(T), zz) for ang in angles_deg]
+    rj_k = nom.resistance_ohm * nom.inertia_kg_m2 / nom.torque_constant_Nm_per_A
+    best = None
+    for G in np.logspace(-3, 1, 200):
+        ok = True
+        for Pw in plants:
+            Cw = G * (Dw + lam) + rj_k * lam * Dw
+            gm, pm, _ = grid_margins(w, Cw * Pw)
+            if not (20 * math.log10(gm) >= gm_db and pm >= pm_deg):
+                ok = False
+                break
+        if ok:
+            best = G
+    if best is None:
+        raise ValueError(f"SlidingModeController: no layer gain gives {gm_db} dB / {pm_deg} deg of margin with "
+                         f"lambda = {lam} rad/s; lower lambda")
+    return float(best)
+
+
+def current_feedback_poles(plant, phi0_rad: float, gain_V_per_A: float) -> np.ndarray:
+    """Poles of the sliding-friction linearization with the coil current fed back, u = -K_c i (the inner
+    current loop's damping of the electro-mechanical mode)."""
+    lin = linearize(plant, phi0_rad, "sliding")
+    K = np.zeros((1, lin.A.shape[0]))
+    K[0, 2] = gain_V_per_A
+    return np.linalg.eigvals(lin.A - lin.B @ K)
+
+
+def _mode_text(poles) -> str:
+    p = [q for q in np.sort_complex(poles) if q.imag > 1e-6]
+    if not p:
+        return "no oscillatory mode"
+    q = p[0]
+    return f"{abs(q):.0f} rad/s, damping {-q.real / abs(q):.2f}"
+
+
+# ------------------------------------------------------------------------------------------------ command line
+def main(argv=None) -> int:
+    """``etb-gym design``: linearized plant, designed PID gains and margins per scheduling angle, the
+    sliding-mode gains, the ECU cascade's current loop, and Bode / step plots (PNG) of the designed loops."""
+    import argparse
+
+    from etb_gym.plant import MODELS
+
+    p = argparse.ArgumentParser(prog="etb-gym design", description=main.__doc__.split("\n\n")[0].replace("``", ""))
+    p.add_argument("--model", default="3B", help=f"plant model, one of {', '.join(MODELS)} (default 3B)")
+    p.add_argument("--out", default="docs/figures/controllers", help="folder for the PNGs")
+    p.add_argument("--no-plots", action="store_true", help="print the design only")
+    a = p.parse_args(argv)
+    if a.model.upper() not in MODELS:
+        p.error(f"unknown model {a.model!r}: valid are {', '.join(MODELS)}")
+    from .cascade import PTOSController
+    from .pid import PIDController
+    from .smc import SlidingModeController
+
+    model = a.model.upper()
+    pid = PIDController(model=model)
+    smc = SlidingModeController(model=model)
+    ptos = PTOSController(model=model)
+    print(f"Nominal model {model}: {pid.model.describe()}")
+    for ang in pid.schedule_rad:
+        print(describe_plant(pid.model.plant, float(ang)))
+    print("\npid-plain: PID designs (crossover 50 rad/s, phase margin >= 50 deg), scheduled on the reference angle:")
+    for d in pid.designs:
+        print("  " + d.summary())
+    print(f"  friction compensator linear zone e_fc = {math.degrees(pid.friction_zone_rad):.4f} deg, "
+          f"level T_s/T_c = {pid.model.static_Nm}/{pid.model.coulomb_Nm} Nm")
+    print(f"\nsmc-plain: lambda = {smc.lambda_rad_s:g} rad/s, K = {smc.K_V:.3f} V, layer gain K/Phi = "
+          f"{smc.layer_gain:.4f} V s/rad, Phi = {smc.phi_layer:.2f} rad/s, k0 = {smc.k0:g} rad/s")
+    print(f"\nECU cascade (pid, smc, ptos): current feedback K_c = {ptos.Kc:g} V/A, friction zone "
+          f"{math.degrees(ptos.friction_zone):.3f} deg")
+    for ang in (13.0, 80.0):
+        phi0 = math.radians(ang)
+        print(f"  electro-mechanical mode at {ang:g} deg: voltage drive "
+              f"{_mode_text(linearize(pid.model.plant, phi0, 'sliding').poles())}; with K_c: "
+              f"{_mode_text(current_feedback_poles(pid.model.plant, phi0, ptos.Kc))}")
+    if a.no_plots:
+        return 0
+    out = Path(a.out)
+    files = _plot_pid(pid, model, out)
+    print("\nwrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
+def _plot_pid(pid, model: str, out: Path) -> list:
+    """Bode plot and linear closed-loop steps of the voltage-mode PID designs (local Agg canvases)."""
+    import control
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    T = pid.dt
+    w = np.logspace(0, math.log10(0.99 * math.pi / T), 600)
+    fig = Figure(figsize=(7, 6))
+    axm, axp = fig.subplots(2, 1, sharex=True)
+    fig_s = Figure(figsize=(7, 4))
+    axs = fig_s.subplots()
+    for d in pid.designs:
+        Pd = linearize(pid.model.plant, d.phi0_rad, "sliding").discrete(T)
+        L = d.controller_tf() * Pd
+        resp = np.array([complex(np.asarray(L(np.exp(1j * x * T))).ravel()[0]) for x in w])
+        lab = f"{math.degrees(d.phi0_rad):.1f} deg: PM {d.phase_margin_deg:.0f} deg, GM {20 * math.log10(d.gain_margin):.1f} dB"
+        axm.semilogx(w, 20 * np.log10(np.abs(resp)), label=lab)
+        axp.semilogx(w, np.degrees(np.unwrap(np.angle(resp))) - 360 * (np.degrees(np.angle(resp[0])) > 0))
+        cl = control.feedback(L, 1)
+        t, y = control.step_response(cl, T=np.arange(0, 0.3, T))
+        axs.plot(t * 1e3, np.squeeze(y), label=f"{math.degrees(d.phi0_rad):.1f} deg")
+    axm.axhline(0, color="k", lw=0.6)
+    axp.axhline(-180, color="k", lw=0.6)
+    axm.set_ylabel("|L| [dB]")
+    axp.set_ylabel("arg L [deg]")
+    axp.set_xlabel("frequency [rad/s]")
+    axm.set_title(f"pid-plain loop L = C(z) P(z), model {model} linearized (sliding friction)", fontsize=9)
+    axm.legend(fontsize=8)
+    for ax in (axm, axp):
+        ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    axs.set_xlabel("time [ms]")
+    axs.set_ylabel("angle / reference")
+    axs.set_title(f"Linear closed-loop step responses of the pid-plain designs (model {model})", fontsize=9)
+    axs.grid(alpha=0.3)
+    axs.legend(fontsize=8)
+    fig_s.tight_layout()
+    files = [out / f"pid_bode_{model}.png", out / f"pid_step_{model}.png"]
+    for f, path in zip((fig, fig_s), files):
+        save_png(f, path, FigureCanvasAgg)
+    return files
+
+
+def save_png(fig, path: Path, canvas_cls=None) -> None:
+    """Render a matplotlib Figure on its own Agg canvas and write it atomically (etb_gym.io.write_atomic)."""
+    from etb_gym.io import write_atomic
+
+    if canvas_cls is None:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg as canvas_cls
+    canvas_cls(fig)
+    write_atomic(Path(path), lambda fh: fig.savefig(fh, dpi=90, format="png"))

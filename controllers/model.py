@@ -14,7 +14,6 @@ Load torques the feed-forward cancels (positive = opposing opening):
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -79,28 +78,9 @@ class NominalModel:
         tq, _, _ = _spring_py(spring)(0.0, float(phi_rad), 0.0, 0.0, 0.0, _EMPTY, p, _EMPTY)
         return -float(tq)
 
-    def spring_slope_Nm_per_rad(self, phi_rad: float) -> float:
-        """d T_spring / d phi: R_F outside the limp-home contact, R_F + T_SP0/eps inside it."""
-        inside = abs(phi_rad - self.limp_home_rad) < self.limp_home_compliance_rad
-        return self.spring_rate_Nm_per_rad + (self.preload_Nm / self.limp_home_compliance_rad if inside else 0.0)
-
-    @property
-    def emf_damping_Nm_s_per_rad(self) -> float:
-        """k^2 / R: the damping the short-circuited coil adds (quasi-static)."""
-        return self.torque_constant_Nm_per_A ** 2 / self.resistance_ohm
-
-    def voltage_for_torque(self, torque_Nm: float, omega_rad_s: float = 0.0) -> float:
-        """Quasi-static coil: u = R T / k + k omega."""
-        k = self.torque_constant_Nm_per_A
-        return self.resistance_ohm * torque_Nm / k + k * omega_rad_s
-
     @property
     def volts_per_Nm(self) -> float:
         return self.resistance_ohm / self.torque_constant_Nm_per_A
-
-    @property
-    def breakaway_current_A(self) -> float:
-        return (self.static_Nm + self.preload_Nm) / self.torque_constant_Nm_per_A
 
     def describe(self) -> str:
         return (f"J={self.inertia_kg_m2:.3g} kg m^2, R={self.resistance_ohm:.3g} ohm, L={self.inductance_H:.3g} H, "
@@ -126,5 +106,17 @@ def resolve_model(model=None, params: dict | None = None) -> NominalModel:
     return NominalModel.for_model("3B" if model is None else str(model), params)
 
 
-def deg(x_rad: float) -> float:
-    return math.degrees(x_rad)
+_MODELS_BY_KEY: dict = {}
+
+
+def model_key(nom: NominalModel) -> str:
+    """A hashable key of a nominal model (its plant's parameters and drive), for caching designs per model.
+    :func:`model_for_key` returns the model again."""
+    p = nom.plant
+    key = repr(sorted(p.params_dict().items())) + str(p.model) + type(p.drive).__name__ + repr(nom.supply_V)
+    _MODELS_BY_KEY.setdefault(key, nom)
+    return key
+
+
+def model_for_key(key: str) -> NominalModel:
+    return _MODELS_BY_KEY[key]

@@ -28,13 +28,13 @@ bristles (stiffness sigma0) tolerates, so the compensated loop does not limit-cy
 """
 from __future__ import annotations
 
-import functools
 import math
 
 import numpy as np
 
-from .base import BaseController, VelocityEstimator, check_gain
-from .model import NominalModel, resolve_model
+from .base import BaseController, VelocityEstimator, check_gain, register_controller
+from .design import presliding_gain_limit, rolloff_tf, scheduled_pid_designs
+from .model import model_key, resolve_model
 
 
 class Biquad:
@@ -66,38 +66,11 @@ class Biquad:
 def rolloff_biquad(cutoff_rad_s: float, dt: float, damping: float = 0.7) -> Biquad | None:
     if not math.isfinite(cutoff_rad_s):
         return None
-    from .design import rolloff_tf
-
     tf = rolloff_tf(cutoff_rad_s, dt, damping)
     num = np.asarray(tf.num[0][0], float)
     den = np.asarray(tf.den[0][0], float)
     num = np.concatenate([np.zeros(3 - num.size), num])
     return Biquad(num, den)
-
-
-@functools.lru_cache(maxsize=64)
-def _designs(model_key, crossover, pm, ratio, wf, angles_deg):
-    from .design import design_pid
-
-    nom = _MODEL_CACHE[model_key]
-    return tuple(design_pid(nom.plant, math.radians(a), crossover_rad_s=crossover, phase_margin_deg=pm,
-                            integral_ratio=ratio, derivative_cutoff_rad_s=wf) for a in angles_deg)
-
-
-@functools.lru_cache(maxsize=64)
-def _presliding_limit(model_key, angle_deg):
-    from .design import max_stable_gain
-
-    return max_stable_gain(_MODEL_CACHE[model_key].plant, math.radians(angle_deg), "presliding")
-
-
-_MODEL_CACHE: dict = {}
-
-
-def _model_key(nom: NominalModel):
-    key = repr(sorted(nom.plant.params_dict().items())) + str(nom.plant.model) + type(nom.plant.drive).__name__
-    _MODEL_CACHE.setdefault(key, nom)
-    return key
 
 
 class PIDController(BaseController):
@@ -148,8 +121,8 @@ class PIDController(BaseController):
         angles = tuple(float(check_gain(own, "schedule_deg", a)) for a in schedule_deg)
         if not angles or list(angles) != sorted(angles):
             raise ValueError(f"{own}.schedule_deg = {schedule_deg!r} is invalid: expected increasing angles")
-        key = _model_key(self.model)
-        designs = _designs(key, float(crossover_rad_s), float(phase_margin_deg), float(integral_ratio),
+        key = model_key(self.model)
+        designs = scheduled_pid_designs(key, float(crossover_rad_s), float(phase_margin_deg), float(integral_ratio),
                            float(derivative_cutoff_rad_s), angles)
         self.designs = designs
         if not gain_scheduling:
@@ -169,7 +142,7 @@ class PIDController(BaseController):
         # friction compensator linear zone from the presliding stability limit (module docstring)
         m = self.model
         if friction_zone_rad is None:
-            kmax = min(_presliding_limit(key, a) for a in angles) if m.bristle_stiffness_Nm_per_rad > 0 else math.inf
+            kmax = min(presliding_gain_limit(key, a) for a in angles) if m.bristle_stiffness_Nm_per_rad > 0 else math.inf
             slope_max = 0.5 * kmax
             fz = m.volts_per_Nm * m.static_Nm * max(self.friction_level, 1e-9) / slope_max if math.isfinite(slope_max) else 0.0
             # never narrower than two sensor quantization steps (12 bit over 90 deg)
@@ -219,3 +192,12 @@ class PIDController(BaseController):
             self.integral_V += self.dt * (ki * e + (u_sat - u) / tt)
         self._u_prev = u_sat
         return u_sat / Vs
+
+
+register_controller("pid-plain", lambda **kw: PIDController(**{"name": "pid-plain", **kw}),
+                    "voltage-mode discrete PID, designed gains, limp-home + friction compensation, gain scheduling "
+                    "(controllers/pid.py; the reference before the ECU cascade)")
+register_controller("pid-nocomp", lambda **kw: PIDController(**{"friction_compensation": False,
+                                                               "limp_home_compensation": False,
+                                                               "gain_scheduling": False, "name": "pid-nocomp", **kw}),
+                    "pid-plain without limp-home/friction compensation and scheduling (ablation)")

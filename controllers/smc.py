@@ -43,46 +43,11 @@ Gains (derived, see docs/controllers.md):
 """
 from __future__ import annotations
 
-import functools
 import math
 
-import numpy as np
-
-from .base import BaseController, VelocityEstimator, check_gain
-from .model import NominalModel, resolve_model
-from .pid import _MODEL_CACHE, _model_key
-
-
-@functools.lru_cache(maxsize=64)
-def design_layer_gain(model_key, lam, wf, gm_db, pm_deg, angles_deg=(13.0, 40.0, 80.0)):
-    """Largest layer gain G = K/Phi [V s/rad] meeting the margins at every angle (grid search)."""
-    import control
-
-    from .design import _eval_tf, _grid_margins, linearize
-
-    nom: NominalModel = _MODEL_CACHE[model_key]
-    T = nom.control_period_s
-    w = np.logspace(0, math.log10(0.999 * math.pi / T), 3000)
-    zz = np.exp(1j * w * T)
-    a = math.exp(-wf * T)
-    Dw = (1 - a) * (1 - 1 / zz) / (T * (1 - a / zz))
-    plants = [_eval_tf(linearize(nom.plant, math.radians(ang), "sliding").discrete(T), zz) for ang in angles_deg]
-    rj_k = nom.resistance_ohm * nom.inertia_kg_m2 / nom.torque_constant_Nm_per_A
-    best = None
-    for G in np.logspace(-3, 1, 200):
-        ok = True
-        for Pw in plants:
-            Cw = G * (Dw + lam) + rj_k * lam * Dw
-            gm, pm, wgc = _grid_margins(w, Cw * Pw)
-            if not (20 * math.log10(gm) >= gm_db and pm >= pm_deg):
-                ok = False
-                break
-        if ok:
-            best = G
-    if best is None:
-        raise ValueError(f"SlidingModeController: no layer gain gives {gm_db} dB / {pm_deg} deg of margin with "
-                         f"lambda = {lam} rad/s; lower lambda")
-    return float(best)
+from .base import BaseController, VelocityEstimator, check_gain, register_controller
+from .design import smc_layer_gain
+from .model import model_key, resolve_model
 
 
 class SlidingModeController(BaseController):
@@ -122,7 +87,7 @@ class SlidingModeController(BaseController):
             K_V = m.volts_per_Nm * (dT + self.eta_Nm) / (9.0 / 12.0)
         self.K_V = check_gain(own, "K_V", K_V, positive=True)
         if layer_gain_V_s_per_rad is None:
-            layer_gain_V_s_per_rad = design_layer_gain(_model_key(m), self.lambda_rad_s, wf, gm, pm)
+            layer_gain_V_s_per_rad = smc_layer_gain(model_key(m), self.lambda_rad_s, wf, gm, pm)
         self.layer_gain = check_gain(own, "layer_gain_V_s_per_rad", layer_gain_V_s_per_rad, positive=True)
         self.phi_layer = self.K_V / self.layer_gain                 # Phi [rad/s]
         self.k0 = check_gain(own, "k0_rad_s", self.lambda_rad_s / 2 if k0_rad_s is None else k0_rad_s, positive=True)
@@ -166,3 +131,8 @@ class SlidingModeController(BaseController):
         u = u_eq + self.K_V * sat
         self.sigma += self.dt * (-self.k0 * self.sigma + phi * sat)
         return u / self.supply_V
+
+
+register_controller("smc-plain", lambda **kw: SlidingModeController(**{"name": "smc-plain", **kw}),
+                    "voltage-mode boundary-layer sliding mode with conditional integrator and model-based "
+                    "equivalent control (controllers/smc.py; the reference before the ECU cascade)")

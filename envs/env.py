@@ -13,6 +13,7 @@ from etb_gym.components.base import show
 from etb_gym.components.sensor import PositionSensor, PositionSensorParams
 from etb_gym.jit import kernel, py_func
 from etb_gym.plant import MODELS, Plant, make_plant
+from etb_gym.variants import MIN_COIL_TEMPERATURE_C, PlantVariant
 
 from . import observation as obsmod
 from .references import (RANDOM_REFERENCES, PiecewiseLinear, Reference, Steps, as_reference, make_random_task,
@@ -30,12 +31,9 @@ DEFAULT_RANDOMIZATION = {
     "inertia_scale": (0.9, 1.1),            # multiplies J
     "sensor_noise_std_deg": (0.0, 0.05),    # white noise of the angle sensor [deg]
 }
-COPPER_ALPHA_PER_K = 0.00393
-RESISTANCE_REFERENCE_C = 20.0
-FRICTION_FIELDS = ("coulomb_Nm", "static_Nm", "viscous_Nm_s_per_rad")
-SPRING_FIELDS = ("preload_Nm", "rate_Nm_per_rad")
 RESET_OPTIONS = ("angle_deg", "reference", "params", "supply_V")
-ENV_KWARGS = ("model", "reference", "episode_s", "control_period_s", "observe_current", "full_state", "sensor",
+ENV_KWARGS = ("model", "reference", "episode_s", "control_period_s", "observe_current", "observe_supply",
+              "full_state", "sensor",
               "plant", "params", "supply_V", "pwm_mode", "randomize", "reward_weights", "render_mode")
 OBS_BOUND = 10.0           # observation box: [-10, 10] except last_duty in [-1, 1]
 REFERENCE_MARGIN_DEG = 90.0  # references must stay within the end stops +- this margin
@@ -95,6 +93,14 @@ MAX_EPISODE_STEPS = 10_000_000      # the reference is tabulated per episode: bo
 # the single env runs the kernels' plain-Python functions: on scalars they beat a compiled call's dispatch
 _sense, _step_reward = py_func(sense), py_func(step_reward)
 _encode_into, _encode_current_into = py_func(obsmod.encode_into), py_func(obsmod.encode_current_into)
+_encode_supply_into = py_func(obsmod.encode_supply_into)
+
+
+def _flag(name, v) -> bool:
+    """An on/off option: True/False (or 1/0); anything else raises naming the option."""
+    if isinstance(v, (bool, np.bool_)) or (isinstance(v, (int, np.integer)) and v in (0, 1)):
+        return bool(v)
+    raise ValueError(f"{name} = {v!r} is invalid: expected True or False")
 
 
 class Episode:
@@ -137,6 +143,7 @@ class ETBEnv(gym.Env):
     | 2 | reference - sensed angle | deg / 45 |
     | 3 | duty applied in the previous period | [-1, 1] |
     | 4 | sensed coil current (only with ``observe_current=True``) | A / 10 |
+    | 4 or 5 | sensed battery voltage (only with ``observe_supply=True``; after the current if both) | V / 10 |
     | ... | full plant state (only with ``full_state=True``): ``plant.state_names`` each divided by ``env.state_scales`` | ~1 |
 
     Typical ranges: angle entries in [-1.02, 1.02], current in [-1.3, 1.3]. References must stay within the
@@ -174,7 +181,9 @@ class ETBEnv(gym.Env):
       random_steps, pedal``), a dict ``{"name": ..., **params}`` or a ``references.Reference`` object.
       Random ones are drawn anew from ``np_random`` at every reset (default ``"random_steps"``).
     * ``episode_s`` (3.0), ``control_period_s`` (None = the plant's, 1 ms).
-    * ``observe_current`` (False), ``full_state`` (False): extra observation entries.
+    * ``observe_current`` (False), ``observe_supply`` (False), ``full_state`` (False): extra observation
+      entries. The current reading has 0.01 A noise; the battery reading 0.05 V noise and a 10-bit ADC over
+      20 V (0.0195 V steps), set with ``sensor={"supply_noise_std_V": ..., "supply_resolution_V": ...}``.
     * ``sensor``: dict of ``PositionSensorParams`` overrides, e.g. ``{"noise_std_rad": 0.0}``.
     * ``plant``: a plant file (.toml/.json, see docs/plant-file.md), a plant dict or a ``Plant``.
     * ``params``: dict of ``"component.field"`` overrides applied to the plant (e.g.
@@ -207,7 +216,8 @@ class ETBEnv(gym.Env):
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
 
     def __init__(self, model: str = "3B", reference: Any = "random_steps", episode_s: float = 3.0,
-                 control_period_s: float | None = None, observe_current: bool = False, full_state: bool = False,
+                 control_period_s: float | None = None, observe_current: bool = False,
+                 observe_supply: bool = False, full_state: bool = False,
                  sensor: Mapping | None = None, plant: Any = None, params: Mapping | None = None,
                  supply_V: float | None = None, pwm_mode: str | None = None, randomize: bool | Mapping = False,
                  reward_weights: Mapping | None = None, render_mode: str | None = None, **kwargs):
@@ -253,6 +263,7 @@ class ETBEnv(gym.Env):
         self._gain, self._offset, self._q = sp.gain, sp.offset_rad, sp.resolution_rad
         self._delay = sp.delay_steps
         self._cur_std, self._cur_q = sp.current_noise_std_A, sp.current_resolution_A
+        self._sup_std, self._sup_q = sp.supply_noise_std_V, sp.supply_resolution_V
         # ---- reward
         w = dict(DEFAULT_REWARD_WEIGHTS)
         if reward_weights is not None:
@@ -277,10 +288,13 @@ class ETBEnv(gym.Env):
         else:
             self._fixed_reference = self._build_reference(reference, None)
         # ---- spaces
-        self.observe_current, self.full_state = bool(observe_current), bool(full_state)
+        self.observe_current, self.full_state = _flag("observe_current", observe_current), bool(full_state)
+        self.observe_supply = _flag("observe_supply", observe_supply)
+        self._supply_index = 4 + self.observe_current
+        self._noise_cols = 2 + self.observe_supply      # angle, current (, supply) noise per control period
         self.state_scales = self._state_scales(p)
         self._inv_scales = 1.0 / self.state_scales
-        n_obs = 4 + self.observe_current + (p.n_states if self.full_state else 0)
+        n_obs = 4 + self.observe_current + self.observe_supply + (p.n_states if self.full_state else 0)
         self.n_obs = n_obs
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         low = np.full(n_obs, -OBS_BOUND, np.float32)
@@ -352,9 +366,9 @@ class ETBEnv(gym.Env):
                 raise ValueError(f"randomize[{k!r}] = {v!r}: expected non-negative bounds")
             if k in ("supply_V", "inertia_scale") and lo <= 0:
                 raise ValueError(f"randomize[{k!r}] = {v!r}: expected bounds > 0")
-            if k == "coil_temperature_C" and lo <= RESISTANCE_REFERENCE_C - 1 / COPPER_ALPHA_PER_K:
+            if k == "coil_temperature_C" and lo <= MIN_COIL_TEMPERATURE_C:
                 raise ValueError(f"randomize[{k!r}] = {v!r}: expected temperatures above "
-                                 f"{RESISTANCE_REFERENCE_C - 1 / COPPER_ALPHA_PER_K:.0f} C (R > 0)")
+                                 f"{MIN_COIL_TEMPERATURE_C:.0f} C (R > 0)")
             out[k] = (lo, hi)
         return {k: out[k] for k in DEFAULT_RANDOMIZATION if k in out}   # canonical draw order
 
@@ -478,24 +492,9 @@ class ETBEnv(gym.Env):
         return Episode(P, V, self._initial_state(angle), ref, tab, noise, draws)
 
     def _apply_draws(self, draws, overrides):
-        p, nom = self.plant, self._nominal
-
-        def cur(key):
-            return float(overrides.get(key, nom[key]))
-
-        if "coil_temperature_C" in draws and "drive.resistance_ohm" in nom:
-            T = draws["coil_temperature_C"]
-            overrides["drive.resistance_ohm"] = cur("drive.resistance_ohm") * (
-                1.0 + COPPER_ALPHA_PER_K * (T - RESISTANCE_REFERENCE_C))
-        for key, role, fields in (("friction_scale", "friction", FRICTION_FIELDS),
-                                  ("spring_scale", "spring", SPRING_FIELDS)):
-            if key in draws and getattr(p, role) is not None:
-                for f in fields:
-                    name = f"{role}.{f}"
-                    if name in nom:
-                        overrides[name] = cur(name) * draws[key]
-        if "inertia_scale" in draws:
-            overrides["rotor.inertia_kg_m2"] = cur("rotor.inertia_kg_m2") * draws["inertia_scale"]
+        """This episode's plant variant (etb_gym.variants) applied on top of ``overrides`` (in place)."""
+        plant_part = {k: v for k, v in draws.items() if k not in ("supply_V", "sensor_noise_std_deg")}
+        overrides.update(PlantVariant.from_draws(plant_part).overrides(self._nominal, overrides))
 
     # ------------------------------------------------------------------------------ sensing
     def _read_angle(self, phi):
@@ -508,13 +507,16 @@ class ETBEnv(gym.Env):
             phi = old
         pos = self._npos
         if pos == NOISE_BLOCK:
-            self._noise = self.np_random.standard_normal((NOISE_BLOCK, 2))
+            self._noise = self.np_random.standard_normal((NOISE_BLOCK, self._noise_cols))
             pos = 0
         self._npos = pos + 1
         return _sense(phi, self._gain, self._offset, self._noise_std * self._noise.item(pos, 0), self._q), pos
 
     def _read_current(self, i, pos):
         return _sense(i, 1.0, 0.0, self._cur_std * self._noise.item(pos, 1), self._cur_q)
+
+    def _read_supply(self, pos):
+        return _sense(self._V, 1.0, 0.0, self._sup_std * self._noise.item(pos, 2), self._sup_q)
 
     # ------------------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -531,7 +533,7 @@ class ETBEnv(gym.Env):
         if self._delay:
             self._dbuf = [phi] * (self._delay + 1)
             self._dpos = 0
-        self._noise = self.np_random.standard_normal((NOISE_BLOCK, 2))
+        self._noise = self.np_random.standard_normal((NOISE_BLOCK, self._noise_cols))
         self._npos = 0
         r = self._tab.item(0)
         obs, info = self._observe(x, r, 0.0, 0.0)
@@ -549,6 +551,8 @@ class ETBEnv(gym.Env):
         _encode_into(obs, s_deg, r, d)
         if self.observe_current:
             _encode_current_into(obs, self._read_current(i, pos))
+        if self.observe_supply:
+            _encode_supply_into(obs, self._supply_index, self._read_supply(pos))
         if self.full_state:
             obs[self.n_obs - x.size:] = x * self._inv_scales
         if self._clip_obs:

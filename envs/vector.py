@@ -35,7 +35,7 @@ from gymnasium.vector.utils import batch_space
 from etb_gym.jit import HAVE_NUMBA, kernel
 
 from .env import NOISE_BLOCK, RAD2DEG, ETBEnv, sense, step_reward
-from .observation import encode_current_into, encode_into
+from .observation import encode_current_into, encode_into, encode_supply_into
 
 SERIAL_UP_TO = 4      # up to this many plants: the single env's compiled control step in a loop
 PARALLEL_FROM = 64    # below this many plants one thread is faster than waking numba's thread pool
@@ -77,11 +77,11 @@ def step_rewards(duty, last_duty, X, K, ref_table, max_steps, weights, reward, t
 
 @kernel
 def observe_rows(rows, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps, delay_buf, delay_pos, noise,
-                 noise_pos, noise_std, sensor, observe_current, state_scale, clip, obs_low, obs_high, info_cols,
-                 obs, info):
+                 noise_pos, noise_std, sensor, observe_current, observe_supply, state_scale, clip, obs_low, obs_high,
+                 info_cols, obs, info):
     """Sensing, observation and info of sub-envs ``rows``: the single env's ``_observe`` per row, written to
     ``obs[j]`` and ``info[:, j]`` for ``b = rows[j]`` (the info keys' order: INFO_KEYS, torques, t_s). ``sensor`` = (gain, offset, resolution, current noise std,
-    current resolution); ``state_scale`` is empty unless the full state is observed; ``info_cols``: the AUX
+    current resolution, supply noise std, supply resolution); ``state_scale`` is empty unless the full state is observed; ``info_cols``: the AUX
     column of each torque key (-1: no such component, 0). Returns how many of the rows used up their noise
     block (the caller draws the next block before their next reading, as the single env does)."""
     used_up = 0
@@ -108,6 +108,9 @@ def observe_rows(rows, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps,
         encode_into(o, s_deg, r, d)
         if observe_current:
             encode_current_into(o, sense(X[b, 2], 1.0, 0.0, sensor[3] * noise[b, pos, 1], sensor[4]))
+        if observe_supply:
+            encode_supply_into(o, 5 if observe_current else 4,
+                               sense(supply_V[b], 1.0, 0.0, sensor[5] * noise[b, pos, 2], sensor[6]))
         for m in range(n_x):
             o[n_obs - n_x + m] = X[b, m] * state_scale[m]
         if clip:
@@ -213,7 +216,7 @@ class ETBVectorEnv(VectorEnv):
         self._d = np.zeros(N)                   # this step's applied duty
         self._duty = np.zeros(N)                # the previous step's
         self._tab = np.zeros((N, env.max_steps + 1))
-        self._noise = np.zeros((N, NOISE_BLOCK, 2))
+        self._noise = np.zeros((N, NOISE_BLOCK, env._noise_cols))
         self._npos = np.zeros(N, np.int64)
         self._noise_std = np.zeros(N)
         self._dbuf = np.zeros((N, env._delay + 1))
@@ -224,7 +227,8 @@ class ETBVectorEnv(VectorEnv):
         self._dx = np.empty(p.n_states)
         # constants of the compiled loops
         self._weights = np.array([env._wt, env._we, env._wc])
-        self._sensor = np.array([env._gain, env._offset, env._q, env._cur_std, env._cur_q])
+        self._sensor = np.array([env._gain, env._offset, env._q, env._cur_std, env._cur_q, env._sup_std,
+                                 env._sup_q])
         self._state_scale = env._inv_scales if env.full_state else np.zeros(0)
         torques = env._torque_index + env._effect_torques
         self._info_cols = np.array([k for _, k in torques], np.int64)
@@ -271,8 +275,8 @@ class ETBVectorEnv(VectorEnv):
         info = np.empty((len(self._info_keys), rows.size))
         used_up = observe_rows(rows, self._X, self._AUX, self._duty, self._V, self._K, env.dt, self._tab,
                                env.max_steps, self._dbuf, self._dpos, self._noise, self._npos, self._noise_std,
-                               self._sensor, env.observe_current, self._state_scale, env._clip_obs, env._obs_low,
-                               env._obs_high, self._info_cols, obs, info)
+                               self._sensor, env.observe_current, env.observe_supply, self._state_scale,
+                               env._clip_obs, env._obs_low, env._obs_high, self._info_cols, obs, info)
         self._refill_pending |= used_up > 0
         return obs, info
 

@@ -9,7 +9,12 @@ control) before the step/ramp/profile; step metrics are measured from the step o
 
     rise_time_s             10 % -> 90 % of the step
     settling_time_s         last exit from the band max(2 % of |step|, 0.1 deg) (0.1 deg: sensor resolution
-                            floor, so for a 0.5 deg step it is the "reach +-0.1 deg and stay" time)
+                            floor, so for a 0.5 deg step it is the "reach +-0.1 deg and stay" time). NaN when
+                            the plate never settles, and when the hold left the plate more than a band away
+                            from the step's start (no step response to measure: flagged, counted as a miss)
+    step_start_deg          the true angle at the step (where the step really started)
+    bound_s                 the physical bound of the step on this plant variant (etb_gym.bound)
+    settling_ratio          settling_time_s / bound_s
     overshoot_pct           largest excursion beyond the final reference, % of |step|
     steady_state_error_deg  mean |r - phi| over the last 0.1 s
     limit_cycle_deg         half the peak-to-peak of phi over the last 0.1 s (a sustained oscillation)
@@ -18,11 +23,18 @@ control) before the step/ramp/profile; step metrics are measured from the step o
     control_effort          RMS duty over the window;  peak_current_A  max |i|
     duty_total_variation    sum |d_k - d_{k-1}| over the window (chattering)
     stable                  finite, and |r - phi| < 2 deg + 5 % of the travel at the end
+    signals                 what the controller read besides the reference: angle (+current, +supply)
+
+Module layout: scenarios and variants, one run, the results file, the bounds, the sweep, the command line
+(``etb-gym benchmark``); one module because they share the Job/row/bound keys (~680 lines).
 """
 from __future__ import annotations
 
+import argparse
 import csv
 import io
+import sys
+import time
 import math
 import os
 from dataclasses import dataclass, field
@@ -31,11 +43,13 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from etb_gym.bound import settling_index
+from etb_gym.variants import PlantVariant
+
 from .io import write_atomic
 
 HOLD_S = 0.3
 TAIL_S = 0.1
-COPPER_ALPHA_PER_K = 0.00393
 
 
 # ------------------------------------------------------------------------------------------------ scenarios
@@ -86,57 +100,44 @@ SMALL_STEP_SCENARIOS = ("small_step_limp_home", "small_step_limp_home_neg", "sma
 # ------------------------------------------------------------------------------------------------ variants
 @dataclass(frozen=True)
 class Variant:
+    """A named cell of the robustness grid: a :class:`~etb_gym.variants.PlantVariant` of the env's plant."""
+
     name: str
     description: str
-    supply_V: float | None = None
-    coil_temperature_C: float | None = None
-    friction_scale: float = 1.0
-    spring_scale: float = 1.0
-    sensor: Mapping = field(default_factory=dict)
+    plant: PlantVariant = field(default_factory=PlantVariant)
 
     def env_kwargs(self, env_id: str) -> dict:
         """params / supply_V / sensor arguments of gym.make for this variant (relative to the env's plant)."""
         from etb_gym.plant import make_plant
 
-        nom = make_plant(model_of(env_id)).params_dict()
-        params = {}
-        if self.coil_temperature_C is not None and "drive.resistance_ohm" in nom:
-            params["drive.resistance_ohm"] = nom["drive.resistance_ohm"] * (
-                1.0 + COPPER_ALPHA_PER_K * (self.coil_temperature_C - 20.0))
-        if self.friction_scale != 1.0:
-            for f in ("coulomb_Nm", "static_Nm", "viscous_Nm_s_per_rad"):
-                if f"friction.{f}" in nom:
-                    params[f"friction.{f}"] = nom[f"friction.{f}"] * self.friction_scale
-        if self.spring_scale != 1.0:
-            for f in ("preload_Nm", "rate_Nm_per_rad"):
-                if f"spring.{f}" in nom:
-                    params[f"spring.{f}"] = nom[f"spring.{f}"] * self.spring_scale
-        kw = {"params": params}
-        if self.supply_V is not None:
-            kw["supply_V"] = self.supply_V
-        if self.sensor:
-            kw["sensor"] = dict(self.sensor)
+        kw = {"params": self.plant.overrides(make_plant(model_of(env_id)).params_dict())}
+        if self.plant.supply_V is not None:
+            kw["supply_V"] = self.plant.supply_V
+        if self.plant.sensor_noise_std_deg is not None:
+            kw["sensor"] = {"noise_std_rad": math.radians(self.plant.sensor_noise_std_deg)}
         return kw
 
 
 VARIANTS: dict[str, Variant] = {v.name: v for v in [
     Variant("nominal", "the env's default plant (12 V, 20 C, nominal friction/springs/sensor)"),
-    Variant("supply_9V", "battery at 9 V", supply_V=9.0),
-    Variant("supply_16V", "battery at 16 V", supply_V=16.0),
-    Variant("coil_-40C", "coil at -40 C: R x (1 + 0.00393 (T - 20))", coil_temperature_C=-40.0),
-    Variant("coil_125C", "coil at 125 C", coil_temperature_C=125.0),
-    Variant("friction_-50", "friction (T_c, T_s, sigma2) -50 %", friction_scale=0.5),
-    Variant("friction_+50", "friction +50 %", friction_scale=1.5),
-    Variant("springs_-20", "spring preload and rate -20 %", spring_scale=0.8),
-    Variant("springs_+20", "spring preload and rate +20 %", spring_scale=1.2),
-    Variant("sensor_noise_high", "angle sensor noise 0.05 deg (5x)", sensor={"noise_std_rad": math.radians(0.05)}),
+    Variant("supply_9V", "battery at 9 V", PlantVariant(supply_V=9.0)),
+    Variant("supply_16V", "battery at 16 V", PlantVariant(supply_V=16.0)),
+    Variant("coil_-40C", "coil at -40 C: R x (1 + 0.00393 (T - 20))", PlantVariant(coil_temperature_C=-40.0)),
+    Variant("coil_125C", "coil at 125 C", PlantVariant(coil_temperature_C=125.0)),
+    Variant("friction_-50", "friction (T_c, T_s, sigma2) -50 %", PlantVariant(friction_scale=0.5)),
+    Variant("friction_+50", "friction +50 %", PlantVariant(friction_scale=1.5)),
+    Variant("springs_-20", "spring preload and rate -20 %", PlantVariant(spring_scale=0.8)),
+    Variant("springs_+20", "spring preload and rate +20 %", PlantVariant(spring_scale=1.2)),
+    Variant("sensor_noise_high", "angle sensor noise 0.05 deg (5x)", PlantVariant(sensor_noise_std_deg=0.05)),
 ]}
 
-DEFAULT_CONTROLLERS = ("pid", "smc")
+DEFAULT_CONTROLLERS = ("ptos", "pid", "smc", "pid-plain", "smc-plain")
 DEFAULT_ENV = "ETB-3B-v0"
 CSV_COLUMNS = ("env", "controller", "scenario", "variant", "seed", "stable", "rise_time_s", "settling_time_s",
                "overshoot_pct", "steady_state_error_deg", "limit_cycle_deg", "iae_deg_s", "rms_error_deg",
-               "control_effort", "peak_current_A", "duty_total_variation")
+               "control_effort", "peak_current_A", "duty_total_variation", "step_start_deg", "bound_s",
+               "settling_ratio", "signals")
+TEXT_COLUMNS = ("signals",)
 KEY_COLUMNS = ("env", "controller", "scenario", "variant", "seed")
 
 
@@ -181,6 +182,19 @@ def build_controller(spec: str, env_id: str, kwargs: Mapping | None = None):
     return make_controller(spec, **kw)
 
 
+SIGNALS = ("angle", "current", "supply")
+
+
+def controller_signals(ctrl) -> tuple:
+    """What a controller reads besides the reference and its last duty (its ``reads`` attribute; default the
+    sensed angle only). The benchmark builds each controller's env with exactly these sensors."""
+    sig = tuple(getattr(ctrl, "reads", ("angle",)))
+    bad = [x for x in sig if x not in SIGNALS]
+    if bad:
+        raise ValueError(f"controller {getattr(ctrl, 'name', ctrl)!r} reads {bad}: expected signals from {SIGNALS}")
+    return sig
+
+
 def simulate(job: Job, controller=None):
     """Run one job through the env; returns (trace dict of arrays, controller name)."""
     import gymnasium as gym
@@ -191,7 +205,9 @@ def simulate(job: Job, controller=None):
     var = VARIANTS[job.variant]
     ctrl = controller if controller is not None else build_controller(job.controller, job.env_id,
                                                                        dict(job.controller_kwargs))
-    env = gym.make(job.env_id, reference=dict(sc.reference), episode_s=sc.duration_s, **var.env_kwargs(job.env_id))
+    sig = controller_signals(ctrl)
+    env = gym.make(job.env_id, reference=dict(sc.reference), episode_s=sc.duration_s,
+                   observe_current="current" in sig, observe_supply="supply" in sig, **var.env_kwargs(job.env_id))
     obs, info = env.reset(seed=job.seed, options={"angle_deg": sc.initial_deg, "reference": dict(sc.reference)})
     ctrl.reset(seed=job.seed)
     n = int(round(sc.duration_s / env.unwrapped.dt))
@@ -219,7 +235,7 @@ def metrics(trace: Mapping, sc: Scenario) -> dict:
     w = slice(k0, None)
     e = r - phi
     tail = t >= t[-1] - TAIL_S + 1e-12
-    out = {k: float("nan") for k in CSV_COLUMNS[5:]}
+    out = {k: float("nan") for k in CSV_COLUMNS[5:] if k not in TEXT_COLUMNS}
     finite = bool(np.all(np.isfinite(phi)))
     out["iae_deg_s"] = float(np.sum(np.abs(e[w])) * dt)
     out["rms_error_deg"] = float(np.sqrt(np.mean(e[w] ** 2)))
@@ -236,14 +252,15 @@ def metrics(trace: Mapping, sc: Scenario) -> dict:
         k10 = np.nonzero(y >= 0.1)[0]
         k90 = np.nonzero(y >= 0.9)[0]
         out["rise_time_s"] = float(tt[k90[0]] - tt[k10[0]]) if k10.size and k90.size else float("nan")
-        band = max(0.02 * abs(step), 0.1)
-        outside = np.nonzero(np.abs(phi[w] - b) > band)[0]
-        if outside.size == 0:
-            out["settling_time_s"] = 0.0
-        elif outside[-1] + 1 < tt.size and outside[-1] < tt.size - int(TAIL_S / dt):
-            out["settling_time_s"] = float(tt[outside[-1] + 1])
+        band = step_band_deg(sc)
+        out["step_start_deg"] = float(phi[k0])
+        k = settling_index(phi[w], b, band, int(TAIL_S / dt))
+        if abs(phi[k0] - a) > band:
+            # the hold left the plate away from the step's start: no step response to measure (flagged NaN,
+            # counted as a miss), where the old rule could report 0 ms for a plate already in the band
+            out["settling_time_s"] = float("nan")
         else:
-            out["settling_time_s"] = float("nan")           # never settled within the scenario
+            out["settling_time_s"] = float("nan") if k is None else float(tt[k])
         out["overshoot_pct"] = float(max(0.0, (np.max(y) - 1.0) * 100.0))
         travel = abs(step)
     else:
@@ -252,13 +269,20 @@ def metrics(trace: Mapping, sc: Scenario) -> dict:
     return out
 
 
+def step_band_deg(sc: Scenario) -> float:
+    """The settling band of a step scenario: max(2 % of the step, 0.1 deg)."""
+    return max(0.02 * abs(sc.step_to_deg - sc.step_from_deg), 0.1)
+
+
 def run_job(job: Job, want_trace: bool = False):
     """Simulate one job; returns (CSV row, trace or None). Runs in pool workers and Ray tasks alike:
     traces travel back to the driver, which writes every file."""
-    trace, _ = simulate(job)
+    ctrl = build_controller(job.controller, job.env_id, dict(job.controller_kwargs))
+    trace, _ = simulate(job, ctrl)
     row = {"env": job.env_id, "controller": job.controller, "scenario": job.scenario, "variant": job.variant,
            "seed": job.seed}
     row.update(metrics(trace, SCENARIOS[job.scenario]))
+    row["signals"] = "+".join(controller_signals(ctrl))
     return row, (trace if want_trace else None)
 
 
@@ -296,7 +320,9 @@ def _parse_row(r):
     out = dict(r)
     out["seed"] = int(r["seed"])
     for c in CSV_COLUMNS[5:]:
-        if c == "stable":
+        if c in TEXT_COLUMNS:
+            out[c] = r.get(c) or ""
+        elif c == "stable":
             out[c] = str(r[c]).lower() == "true"
         else:
             out[c] = float(r[c]) if r.get(c, "") not in ("", None) else float("nan")
@@ -345,6 +371,100 @@ def _pool_init():
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 
+# ------------------------------------------------------------------------------------------------ bounds
+@dataclass(frozen=True)
+class BoundJob:
+    """The physical bound of one step scenario on one plant variant (etb_gym.bound)."""
+
+    env_id: str
+    scenario: str
+    variant: str
+
+    @property
+    def key(self) -> str:
+        return f"{self.env_id}|{self.scenario}|{self.variant}"
+
+
+def bound_plant(env_id: str, variant: str):
+    """The plant a variant's env steps (parameters and battery; the sensor does not matter to the bound)."""
+    from etb_gym.plant import make_plant
+
+    return VARIANTS[variant].plant.apply(make_plant(model_of(env_id)))
+
+
+def bound_fingerprint(job: BoundJob) -> str:
+    """What the bound depends on: the plant's parameters and supply, the step, the band, the horizon and the
+    search method. A cached bound is reused only for the same fingerprint."""
+    import hashlib
+    import json
+
+    from etb_gym.bound import BOUND_METHOD
+
+    p = bound_plant(job.env_id, job.variant)
+    sc = SCENARIOS[job.scenario]
+    spec = {"plant": sorted((k, repr(v)) for k, v in p.params_dict().items()), "model": p.model,
+            "supply_V": p.supply.voltage_V, "dt": p.control_period_s, "substeps": p.substeps,
+            "step": [sc.step_from_deg, sc.step_to_deg, step_band_deg(sc), sc.duration_s - sc.step_at_s, TAIL_S],
+            "method": BOUND_METHOD}
+    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
+
+
+_BOUNDS: dict = {}
+
+
+def compute_bound(job: BoundJob) -> dict:
+    """The bound of one (env, step scenario, variant), cached in process by fingerprint. Returns a JSON-ready
+    dict: bound_s (NaN if the search found no settling input), the duty and true angle from the step on."""
+    from etb_gym.bound import step_bound
+
+    fp = bound_fingerprint(job)
+    hit = _BOUNDS.get(fp)
+    if hit is not None:
+        return hit
+    sc = SCENARIOS[job.scenario]
+    b = step_bound(bound_plant(job.env_id, job.variant), sc.step_from_deg, sc.step_to_deg, step_band_deg(sc),
+                   sc.duration_s - sc.step_at_s, TAIL_S)
+    out = {"fingerprint": fp, "bound_s": b.settling_time_s, "method": b.method, "params": list(b.params),
+           "evaluations": b.evaluations, "duty": [round(float(x), 6) for x in b.duty],
+           "angle_deg": [round(float(x), 5) for x in b.angle_deg]}
+    _BOUNDS[fp] = out
+    return out
+
+
+def read_bounds(path) -> dict:
+    import json
+
+    p = Path(path)
+    if not p.exists():
+        return {}
+    try:
+        d = json.loads(p.read_text())
+    except ValueError:
+        return {}              # a damaged cache is recomputed, never trusted
+    return d if isinstance(d, dict) else {}
+
+
+def write_bounds(path, bounds: Mapping) -> None:
+    import json
+
+    write_atomic(Path(path), json.dumps(bounds, allow_nan=True))
+
+
+def attach_bound(row: dict, bounds: Mapping) -> dict:
+    """Fill a row's bound_s and settling_ratio (= settling_time_s / bound_s) from the bounds."""
+    b = bounds.get(BoundJob(row["env"], row["scenario"], row["variant"]).key)
+    bs = float(b["bound_s"]) if b is not None and b.get("bound_s") is not None else float("nan")
+    row["bound_s"] = bs
+    st = row.get("settling_time_s", float("nan"))
+    row["settling_ratio"] = st / bs if bs > 0 and not math.isnan(st) else float("nan")
+    return row
+
+
+def bound_jobs(jobs: Iterable[Job]) -> list[BoundJob]:
+    return list(dict.fromkeys(BoundJob(j.env_id, j.scenario, j.variant) for j in jobs
+                              if SCENARIOS[j.scenario].kind == "step"))
+
+
 def run_sweep(jobs: list[Job], out_dir, workers: int = 2, ray_address: str | None = None, resume: bool = False,
               progress: bool = True, trace_filter=None) -> list[dict]:
     """Run the jobs, writing ``results.csv`` in ``out_dir`` after every finished run (atomically).
@@ -352,7 +472,10 @@ def run_sweep(jobs: list[Job], out_dir, workers: int = 2, ray_address: str | Non
     ``resume`` keeps the rows already in the file and runs only the missing jobs; without it an existing
     file is replaced. ``workers`` > 1 uses a local process pool; ``ray_address`` ("local" or "auto" or
     "ray://host:port") runs the same jobs as Ray tasks. ``trace_filter(job) -> bool`` selects the runs whose
-    traces are saved to ``out_dir/traces`` (default: seed-0 nominal runs, for the plots)."""
+    traces are saved to ``out_dir/traces`` (default: seed-0 nominal runs, for the plots).
+
+    The physical bound of every (env, step scenario, variant) is computed alongside (the same pool) unless
+    ``out_dir/bounds.json`` holds it with the same fingerprint; each row gets bound_s and settling_ratio."""
     from tqdm.auto import tqdm
 
     out = Path(out_dir)
@@ -371,33 +494,55 @@ def run_sweep(jobs: list[Job], out_dir, workers: int = 2, ray_address: str | Non
     # build each controller once up front: bad specs fail before any work starts
     for spec in dict.fromkeys((j.controller, j.env_id, j.controller_kwargs) for j in todo):
         build_controller(spec[0], spec[1], dict(spec[2]))
-    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="benchmark", unit="run", disable=not progress)
+    bounds_path = out / "bounds.json"
+    cached = read_bounds(bounds_path)
+    bounds = {}
+    bjobs = []
+    for bj in bound_jobs(jobs):
+        hit = cached.get(bj.key)
+        if hit is not None and hit.get("fingerprint") == bound_fingerprint(bj):
+            bounds[bj.key] = hit
+        else:
+            bjobs.append(bj)
+    bar = tqdm(total=len(jobs) + len(bjobs), initial=len(jobs) - len(todo), desc="benchmark", unit="run",
+               disable=not progress)
 
-    def done_row(job, result):
-        row, trace = result
-        if trace is not None:
-            save_trace(trace_dir, job, trace)
-        rows.append(row)
+    def finished(task, result):
+        if isinstance(task, BoundJob):
+            bounds[task.key] = result
+            write_bounds(bounds_path, {**cached, **bounds})
+            for r in rows:
+                attach_bound(r, bounds)
+        else:
+            row, trace = result
+            if trace is not None:
+                save_trace(trace_dir, task, trace)
+            rows.append(attach_bound(row, bounds))
         write_results(csv_path, rows)
         bar.update(1)
 
+    tasks = [(compute_bound, (bj,), bj) for bj in bjobs] + \
+        [(run_job, (j, trace_filter(j)), j) for j in _interleave(todo)]
     try:
         if ray_address:
-            _run_ray(todo, trace_filter, ray_address, done_row)
-        elif workers <= 1 or len(todo) <= 1:
-            for j in todo:
-                done_row(j, run_job(j, trace_filter(j)))
+            _run_ray(tasks, ray_address, finished)
+        elif workers <= 1 or len(tasks) <= 1:
+            for fn, args, task in tasks:
+                finished(task, fn(*args))
         else:
             from concurrent.futures import ProcessPoolExecutor, as_completed
             import multiprocessing as mp
 
             ctx = mp.get_context("spawn")
             with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_pool_init) as ex:
-                futs = {ex.submit(run_job, j, trace_filter(j)): j for j in _interleave(todo)}
+                futs = {ex.submit(fn, *args): task for fn, args, task in tasks}
                 for f in as_completed(futs):
-                    done_row(futs[f], f.result())
+                    finished(futs[f], f.result())
     finally:
         bar.close()
+    for r in rows:
+        attach_bound(r, bounds)
+    write_results(csv_path, rows)
     return sorted(rows, key=row_key)
 
 
@@ -413,7 +558,7 @@ def _interleave(jobs):
     return out
 
 
-def _run_ray(jobs, trace_filter, address, done_row):
+def _run_ray(tasks, address, finished):
     try:
         import ray
     except ImportError:
@@ -426,13 +571,139 @@ def _run_ray(jobs, trace_filter, address, done_row):
             ray.init(address=address, log_to_driver=False)
         started = True
     try:
-        remote = ray.remote(run_job)
-        refs = {remote.remote(j, trace_filter(j)): j for j in _interleave(jobs)}
+        remotes: dict = {}
+        refs = {remotes.setdefault(fn, ray.remote(fn)).remote(*args): task for fn, args, task in tasks}
         pending = list(refs)
         while pending:
             ready, pending = ray.wait(pending, num_returns=1)
             for r in ready:
-                done_row(refs[r], ray.get(r))
+                finished(refs[r], ray.get(r))
     finally:
         if started:
             ray.shutdown()
+
+
+# ------------------------------------------------------------------------------------------------ command line
+CLI_DOC = """Controller benchmark on the ETB envs: controllers x scenarios x plant variants x seeds.
+
+With no arguments: the quick benchmark of the five reference controllers on ETB-3B-v0 (nominal plant and the
+robustness grid, one seed) next to the physical bound of every step, printed as a Markdown table with the
+issue's targets marked pass/FAIL.
+
+    etb-gym benchmark                                  # quick (about a minute on 2 cores)
+    etb-gym benchmark --full --workers 2               # all scenarios, 3 seeds
+    etb-gym benchmark --controller pid --controller my_pkg.ctrl:MyController --env ETB-1A-v0
+    etb-gym benchmark --controller rl:baselines/rl/ppo.zip     # once the RL prefix is registered
+    etb-gym benchmark --ray local                      # same sweep as Ray tasks
+    etb-gym benchmark --resume                         # complete an interrupted sweep
+
+Outputs in --out: results.csv (one row per run, rewritten atomically after every run), results.md (the
+table), response_<env>_<scenario>.png (nominal plant, first seed, with the bound's trajectory), traces/*.npz
+(those runs' traces), bounds.json (the physical bounds, reused when their fingerprint matches).
+"""
+
+
+def parse_args(argv=None):
+    from etb_gym.envs import ENV_IDS
+
+    p = argparse.ArgumentParser(prog="etb-gym benchmark", description=CLI_DOC.split("\n\n")[0],
+                                epilog=CLI_DOC.split("\n\n", 1)[1],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--controller", action="append", metavar="SPEC",
+                   help="built-in name (ptos, pid, smc, pid-plain, smc-plain, pid-nocomp), module:Class or "
+                        "prefix:ARG (e.g. rl:PATH); repeat "
+                        f"for several (default: {' '.join(DEFAULT_CONTROLLERS)})")
+    p.add_argument("--env", default=DEFAULT_ENV, help=f"env id, one of {', '.join(ENV_IDS)} (default {DEFAULT_ENV})")
+    p.add_argument("--scenario", action="append", metavar="NAME",
+                   help=f"scenario(s) (default: quick set; --full: all): {', '.join(SCENARIOS)}")
+    p.add_argument("--variant", action="append", metavar="NAME",
+                   help=f"plant variant(s) (default: all): {', '.join(VARIANTS)}")
+    p.add_argument("--seeds", type=int, default=None, help="number of seeds 0..N-1 (default 1; --full: 3)")
+    p.add_argument("--full", action="store_true", help="all scenarios and 3 seeds")
+    p.add_argument("--out", default=None,
+                   help="output folder (default out/benchmark, gitignored; when it already holds results and neither "
+                        "--resume nor --force is given, the next free out/benchmark-N)")
+    p.add_argument("--workers", type=int, default=2, help="local worker processes (default 2; 1 = in-process)")
+    p.add_argument("--ray", metavar="ADDRESS", default=None,
+                   help="run on Ray: 'local' starts a local instance, 'auto' or 'ray://host:port' joins a cluster")
+    p.add_argument("--resume", action="store_true", help="keep the rows in OUT/results.csv and run only the missing ones")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing OUT/results.csv (default: refuse unless --resume, so no result is lost)")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG response plots")
+    p.add_argument("--quiet", action="store_true", help="no progress bar and no table on stdout")
+    a = p.parse_args(argv)
+    if a.env not in ENV_IDS:
+        p.error(f"unknown env {a.env!r}: valid are {', '.join(ENV_IDS)}")
+    for kind, names, valid in (("scenario", a.scenario, SCENARIOS), ("variant", a.variant, VARIANTS)):
+        bad = [n for n in names or [] if n not in valid]
+        if bad:
+            p.error(f"unknown {kind}(s) {bad}: valid are {', '.join(valid)}")
+    if a.workers < 1:
+        p.error(f"--workers {a.workers}: expected at least 1")
+    if a.seeds is not None and a.seeds < 1:
+        p.error(f"--seeds {a.seeds}: expected at least 1")
+    return a
+
+
+DEFAULT_OUT = Path("out/benchmark")
+
+
+def _output_folder(a) -> Path | None:
+    """Where this run writes; None (after one sentence on stderr) when that would replace earlier results.
+
+    An --out the user named is refused if it is a file or holds results.csv (unless --resume or --force); the
+    default folder moves on to out/benchmark-2, -3, ... instead, so the README's command can be run again."""
+    prog = "etb-gym benchmark"
+    if a.out is None:
+        out = DEFAULT_OUT
+        n = 1
+        while (out / "results.csv").exists() and not (a.resume or a.force):
+            n += 1
+            out = DEFAULT_OUT.with_name(f"{DEFAULT_OUT.name}-{n}")
+        if n > 1:
+            print(f"{prog}: {DEFAULT_OUT} already holds results; writing to {out} (--resume completes the "
+                  f"earlier sweep, --force replaces it)", file=sys.stderr)
+        return out
+    out = Path(a.out)
+    if out.exists() and not out.is_dir():
+        print(f"{prog}: error: --out {out}: is an existing file: expected a folder", file=sys.stderr)
+        return None
+    if (out / "results.csv").exists() and not (a.resume or a.force):
+        print(f"{prog}: error: --out {out}: already holds results.csv: add --resume to complete it, --force "
+              f"to replace it, or choose another folder", file=sys.stderr)
+        return None
+    return out
+
+
+def main(argv=None) -> int:
+    a = parse_args(argv)
+    controllers = a.controller or list(DEFAULT_CONTROLLERS)
+    scenarios = a.scenario or (list(SCENARIOS) if a.full else list(QUICK_SCENARIOS))
+    variants = a.variant or list(VARIANTS)
+    seeds = range(a.seeds if a.seeds is not None else (3 if a.full else 1))
+    try:
+        jobs = make_jobs(controllers, scenarios, variants, seeds, env_id=a.env)
+    except ValueError as exc:
+        print(f"etb-gym benchmark: error: {exc}", file=sys.stderr)
+        return 2
+    out = _output_folder(a)
+    if out is None:
+        return 2
+    t0 = time.perf_counter()
+    try:
+        rows = run_sweep(jobs, out, workers=a.workers, ray_address=a.ray, resume=a.resume, progress=not a.quiet)
+    except (ValueError, RuntimeError) as exc:
+        print(f"etb-gym benchmark: error: {exc}", file=sys.stderr)
+        return 2
+    keys = {j.key for j in jobs}
+    rows = [r for r in rows if (r["env"], r["controller"], r["scenario"], r["variant"], str(r["seed"])) in keys]
+    from etb_gym import bench_report
+
+    md = bench_report.markdown(rows, title=f"Controller benchmark: {', '.join(controllers)} on {a.env}")
+    bench_report.write_text(out / "results.md", md)
+    if not a.no_plots:
+        bench_report.plot_scenarios(out, rows)
+    if not a.quiet:
+        print(md)
+        print(f"{len(rows)} runs in {time.perf_counter() - t0:.1f} s -> {out}/results.csv, results.md, response_*.png")
+    return 0

@@ -32,12 +32,12 @@ def closed_loop(ctrl, a0, a1, n=700, at=250, seed=0, params=None):
 
 @pytest.fixture(scope="module")
 def pid():
-    return make_controller("pid")
+    return make_controller("pid-plain")          # the voltage-mode references: angle-only observations
 
 
 @pytest.fixture(scope="module")
 def smc():
-    return make_controller("smc")
+    return make_controller("smc-plain")
 
 
 def test_protocol_and_names(pid, smc):
@@ -60,10 +60,14 @@ def test_unknown_controller_lists_valid_names():
         make_controller("no_such_module_xyz:Ctrl")
 
 
-@pytest.mark.parametrize("spec, kw, field", [("pid", {"kp": -1.0}, "kp"), ("pid", {"ki": float("nan")}, "ki"),
-                                             ("smc", {"lambda_rad_s": 0.0}, "lambda_rad_s"),
-                                             ("smc", {"K_V": "x"}, "K_V"),
-                                             ("pid", {"crossover_rad_s": 0}, "crossover_rad_s")])
+@pytest.mark.parametrize("spec, kw, field", [("pid-plain", {"kp": -1.0}, "kp"),
+                                             ("pid-plain", {"ki": float("nan")}, "ki"),
+                                             ("smc-plain", {"lambda_rad_s": 0.0}, "lambda_rad_s"),
+                                             ("smc-plain", {"K_V": "x"}, "K_V"),
+                                             ("pid-plain", {"crossover_rad_s": 0}, "crossover_rad_s"),
+                                             ("pid", {"position_gain_rad_s": -3}, "position_gain_rad_s"),
+                                             ("smc", {"K_rad_s": float("inf")}, "K_rad_s"),
+                                             ("ptos", {"alpha": 2.0}, "alpha")])
 def test_invalid_gains_raise_naming_the_gain(spec, kw, field):
     with pytest.raises(ValueError, match=field):
         make_controller(spec, **kw)
@@ -76,11 +80,11 @@ def test_module_class_and_prefix_registry():
 
     def loader(arg, **kw):
         seen["arg"] = arg
-        return make_controller("pid", **kw)
+        return make_controller("pid-plain", **kw)
 
     register_controller_prefix("testprefix", loader)
     c2 = make_controller("testprefix:some/path.zip")
-    assert seen["arg"] == "some/path.zip" and c2.name == "pid"
+    assert seen["arg"] == "some/path.zip" and c2.name == "pid-plain"
     with pytest.raises(ValueError, match="prefix"):
         register_controller_prefix("bad.prefix", loader)
 
@@ -126,7 +130,7 @@ def test_closed_loop_positions_the_plate(spec, request):
 
 
 def test_pid_compensation_helps_small_steps(pid):
-    plain = make_controller("pid-plain")
+    plain = make_controller("pid-nocomp")
     tail = slice(-80, None)
     e_comp = np.mean(np.abs(closed_loop(pid, 40.0, 40.5)[tail] - 40.5))
     e_plain = np.mean(np.abs(closed_loop(plain, 40.0, 40.5)[tail] - 40.5))

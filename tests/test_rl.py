@@ -253,7 +253,7 @@ def test_rms_comparison_ratios_and_marks():
 @pytest.fixture(scope="module")
 def residual_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("rl") / "residual"
-    cfg = small_config(timesteps=256, task={"episode_s": 0.1, "residual": "smc", "residual_scale": 0.3})
+    cfg = small_config(timesteps=256, task={"episode_s": 0.1, "residual": "smc-plain", "residual_scale": 0.3})
     model = train(cfg, out, progress=False, log=lambda *a: None)
     return out, model
 
@@ -280,10 +280,10 @@ def test_residual_smoke_run_records_the_base_controller(residual_run):
     out, model = residual_run
     assert model.num_timesteps == 256
     d = json.loads((out / "config.json").read_text())
-    assert d["task"]["residual"] == "smc" and d["task"]["residual_scale"] == 0.3
+    assert d["task"]["residual"] == "smc-plain" and d["task"]["residual_scale"] == 0.3
     assert d["features"] == list(FEATURE_NAMES) + ["base_duty"]
     assert model.observation_space.shape == (len(FEATURE_NAMES) + 1,)
-    env = training_vec_env("ETB-3B-v0", 2, TaskConfig(episode_s=0.01, residual="pid"), seed=0)
+    env = training_vec_env("ETB-3B-v0", 2, TaskConfig(episode_s=0.01, residual="pid-plain"), seed=0)
     obs = env.reset()
     assert obs.shape == (2, len(FEATURE_NAMES) + 1)
     layer = env.venv
@@ -311,11 +311,11 @@ def test_residual_smoke_run_records_the_base_controller(residual_run):
 def test_untrained_residual_agent_is_its_base_controller():
     from etb_gym.rl import make_model, make_training_env
 
-    cfg = small_config(task={"episode_s": 0.1, "residual": "smc"}).validate()
+    cfg = small_config(task={"episode_s": 0.1, "residual": "smc-plain"}).validate()
     env = make_training_env(cfg)
     ctrl = RLController(model=make_model(cfg, env, None), config=cfg)
     ref = {"name": "step", "initial_deg": 40.0, "final_deg": 40.5, "at_s": 0.01}
-    duties, bases = _drive(ctrl, ref, base=make_controller("smc"))
+    duties, bases = _drive(ctrl, ref, base=make_controller("smc-plain"))
     np.testing.assert_array_equal(duties, bases)          # zeroed output layer: residual exactly 0
     env.close()
 
@@ -327,7 +327,7 @@ def test_residual_round_trip_rebuilds_the_base_controller(residual_run):
     ctrl = make_controller(f"rl:{out}")
     assert isinstance(ctrl.base.ctrls[0], SlidingModeController)
     ref = {"name": "step", "initial_deg": 40.0, "final_deg": 40.5, "at_s": 0.01}
-    d1, bases = _drive(ctrl, ref, base=make_controller("smc"))
+    d1, bases = _drive(ctrl, ref, base=make_controller("smc-plain"))
     d2, _ = _drive(RLController(out / "model.zip"), ref)
     np.testing.assert_array_equal(d1, d2)
     assert np.all(np.abs(d1 - bases) <= 0.3 + 1e-9)       # a bounded correction of the base duty
@@ -335,15 +335,15 @@ def test_residual_round_trip_rebuilds_the_base_controller(residual_run):
 
 
 def test_residual_bad_input_names_the_option(capsys, tmp_path):
-    with pytest.raises(ValueError, match=r"task.residual = 'lqr' is invalid: .*\['pid', 'pid-plain', 'smc'\]"):
+    with pytest.raises(ValueError, match=r"task.residual = 'lqr' is invalid: .*\['pid-nocomp', 'pid-plain', 'smc-plain'\]"):
         TaskConfig(residual="lqr")
     with pytest.raises(ValueError, match="task.residual_scale = 0 is invalid"):
-        TaskConfig(residual="pid", residual_scale=0)
+        TaskConfig(residual="pid-plain", residual_scale=0)
     with pytest.raises(SystemExit):
         train_main(["--residual", "lqr", "--out", str(tmp_path / "r")])
-    assert "--residual 'lqr': unknown base controller; valid are pid, pid-plain, smc" in capsys.readouterr().err
+    assert "--residual 'lqr': unknown base controller; valid are pid-nocomp, pid-plain, smc-plain" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        train_main(["--residual", "smc", "--residual-scale", "3", "--out", str(tmp_path / "r")])
+        train_main(["--residual", "smc-plain", "--residual-scale", "3", "--out", str(tmp_path / "r")])
     assert "--residual-scale 3.0: expected a duty range in (0, 2]" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         train_main(["--residual-scale", "0.2", "--out", str(tmp_path / "r")])

@@ -17,6 +17,7 @@ import math
 from typing import ClassVar
 
 from ..jit import kernel
+from ..variants import COPPER_ALPHA_PER_K
 from .base import Component, Params, check, non_negative, positive
 
 
@@ -33,7 +34,7 @@ class Effect(Component):
 @dataclasses.dataclass(frozen=True)
 class CoilHeatingParams(Params):
     cold_resistance_ohm: float = 1.25           # R_0, the drive's resistance at the start temperature
-    temperature_coefficient_per_K: float = 0.00393   # alpha of copper
+    temperature_coefficient_per_K: float = COPPER_ALPHA_PER_K   # alpha of copper
     heat_capacity_J_per_K: float = 10.0         # C_th of the winding
     thermal_resistance_K_per_W: float = 5.0     # R_th winding -> housing
 

@@ -26,10 +26,13 @@ class PositionSensorParams(Params):
     delay_steps: int = 0                               # transport delay in control periods
     current_noise_std_A: float = 0.01
     current_resolution_A: float = 0.0
+    supply_noise_std_V: float = 0.05                   # battery voltage reading (env observe_supply=True)
+    supply_resolution_V: float = 20.0 / 1024           # 10-bit ADC over 0..20 V
 
     def validate(self):
         n = "PositionSensorParams"
-        non_negative(n, self, "noise_std_rad", "resolution_rad", "current_noise_std_A", "current_resolution_A")
+        non_negative(n, self, "noise_std_rad", "resolution_rad", "current_noise_std_A", "current_resolution_A",
+                     "supply_noise_std_V", "supply_resolution_V")
         check(n, "gain", self.gain, self.gain > 0, "a gain > 0")
         check(n, "delay_steps", self.delay_steps, isinstance(self.delay_steps, int) and self.delay_steps >= 0,
               "a whole number of control periods >= 0")

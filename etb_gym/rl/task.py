@@ -63,10 +63,11 @@ RESIDUAL_FEATURE = "base_duty"          # appended to FEATURE_NAMES in residual 
 
 
 def residual_bases() -> list[str]:
-    """Valid ``task.residual`` base controllers: the built-in classical controllers."""
-    from etb_gym.controllers import CONTROLLERS
+    """Valid ``task.residual`` base controllers: the built-in classical controllers that read the angle only
+    (the policy's env observes no current or battery voltage)."""
+    from etb_gym.controllers import CONTROLLERS, make_controller
 
-    return sorted(CONTROLLERS)
+    return sorted(n for n in CONTROLLERS if tuple(getattr(make_controller(n), "reads", ("angle",))) == ("angle",))
 
 
 def feature_names(task: "TaskConfig | None" = None) -> tuple:

@@ -2,7 +2,7 @@
 
     etb-gym train --env ETB-3B-v0 --timesteps 200000 --out runs/sac_3b            # SAC, 8 sub-envs
     etb-gym train --algo ppo --n-envs 16 --randomize --out runs/ppo_3b
-    etb-gym train --residual smc --residual-scale 0.3 --randomize --out runs/res_3b   # residual RL
+    etb-gym train --residual smc-plain --residual-scale 0.3 --randomize --out runs/res_3b   # residual RL
     etb-gym train --resume runs/sac_3b                  # continue an interrupted (Ctrl-C, kill) run
     etb-gym train --resume runs/sac_3b --timesteps 400000        # ... or extend a finished one
     etb-gym benchmark --controller rl:runs/sac_3b --controller pid --controller smc

@@ -1,0 +1,94 @@
+"""The ECU cascade controllers (pid, smc, ptos): what they read, closed loop through the env, bounded
+self-tuning, cost per step."""
+import math
+import time
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import etb_gym  # noqa: F401
+from etb_gym.benchmark import controller_signals
+from etb_gym.controllers import CONTROLLERS, make_controller
+from etb_gym.controllers.cascade import SelfTuning
+from etb_gym.controllers.model import NominalModel
+
+CASCADE = ("pid", "smc", "ptos")
+
+
+def run(ctrl, a0, a1, *, params=None, supply_V=None, n=400, at=150, seed=0):
+    sig = controller_signals(ctrl)
+    env = gym.make("ETB-3B-v0", observe_current="current" in sig, observe_supply="supply" in sig, params=params,
+                   supply_V=supply_V, reference={"name": "step", "initial_deg": a0, "final_deg": a1,
+                                                 "at_s": at * 1e-3}, episode_s=n * 1e-3)
+    obs, info = env.reset(seed=seed, options={"angle_deg": a0})
+    ctrl.reset(seed)
+    out = []
+    for _ in range(n):
+        obs, _, _, _, info = env.step(np.array([ctrl.act(obs)], np.float32))
+        out.append(info["angle_deg"])
+    return np.array(out)
+
+
+def test_every_controller_declares_what_it_reads():
+    for name in CONTROLLERS:
+        sig = controller_signals(make_controller(name))
+        assert sig[0] == "angle" and set(sig) <= {"angle", "current", "supply"}
+    for name in CASCADE:
+        assert controller_signals(make_controller(name)) == ("angle", "current", "supply")
+    assert controller_signals(make_controller("pid-plain")) == ("angle",)
+
+
+@pytest.mark.parametrize("name", CASCADE)
+def test_cascade_positions_the_plate_at_low_battery_and_hot_coil(name):
+    ctrl = make_controller(name)
+    nominal = run(ctrl, 10.0, 60.0)
+    assert abs(nominal[-1] - 60.0) < 0.1 and np.max(nominal) < 60.0 + 2.5      # < 5 % overshoot
+    # 9 V into a 125 C coil: 5 A at most, enough to hold 40 deg (not 60 deg) against springs and friction
+    hot = run(ctrl, 10.0, 40.0, supply_V=9.0, params={"drive.resistance_ohm": 1.25 * 1.41})
+    assert abs(hot[-1] - 40.0) < 0.1
+
+
+def test_self_tuning_estimates_stay_in_their_bounds():
+    m = NominalModel.for_model("3B")
+    st = SelfTuning(m, 1e-3)
+    # absurd measurements (a resistance of 100 ohm, a huge sliding torque) push every estimate to its bound
+    for _ in range(3000):
+        st.update(i_m=2.0, u_applied=200.0, v=0.0, a=0.0, phi=math.radians(40))
+    assert st.resistance_ohm == pytest.approx(SelfTuning.R_BOUNDS[1] * m.resistance_ohm)
+    for _ in range(3000):
+        st.update(i_m=50.0, u_applied=0.0, v=10.0, a=0.0, phi=math.radians(40))
+    assert st.friction_level == pytest.approx(SelfTuning.FRICTION_BOUNDS[1])
+    assert st.spring_level == pytest.approx(SelfTuning.SPRING_BOUNDS[1])
+    for _ in range(3000):
+        st.update(i_m=-50.0, u_applied=0.0, v=10.0, a=0.0, phi=math.radians(40))
+    assert SelfTuning.FRICTION_BOUNDS[0] <= st.friction_level <= SelfTuning.FRICTION_BOUNDS[1]
+    assert st.spring_level == pytest.approx(SelfTuning.SPRING_BOUNDS[0])
+    for _ in range(3000):
+        st.update(i_m=1.0, u_applied=0.0, v=0.0, a=0.0, phi=math.radians(40))
+    assert st.resistance_ohm == pytest.approx(SelfTuning.R_BOUNDS[0] * m.resistance_ohm)
+    st.reset()
+    assert (st.resistance_ohm, st.friction_level, st.spring_level) == (m.resistance_ohm, 1.0, 1.0)
+
+
+def test_self_tuning_finds_a_hot_coil():
+    ctrl = make_controller("pid")
+    run(ctrl, 10.0, 70.0, params={"drive.resistance_ohm": 1.25 * 1.41})
+    assert ctrl.tuning.resistance_ohm == pytest.approx(1.25 * 1.41, rel=0.08)
+
+
+def test_cascade_cost_per_step():
+    """Each cascade controller's act() runs inside the 1 ms control period in CPython (the fastest of five
+    repeats: the least disturbed by other processes on a shared machine)."""
+    env = gym.make("ETB-3B-v0", observe_current=True, observe_supply=True)
+    obs, _ = env.reset(seed=0)
+    for name in CASCADE:
+        ctrl = make_controller(name)
+        ctrl.reset(0)
+        ts = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            for _ in range(200):
+                ctrl.act(obs)
+            ts.append((time.perf_counter() - t0) / 200)
+        assert min(ts) < 1e-3, f"{name}: {min(ts) * 1e6:.0f} us per step"
