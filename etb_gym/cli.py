@@ -21,7 +21,7 @@ import sys
 
 # name -> (module, one line for ``etb-gym --help``, script that did the job before it moved into the package)
 COMMANDS: dict[str, tuple[str, str, str | None]] = {
-    "benchmark": ("etb_gym.benchmark", "run the controller benchmark (PID, sliding mode, RL agents) on an ETB env",
+    "benchmark": ("etb_gym.benchmark_cli", "run the controller benchmark (PID, sliding mode, RL agents) on an ETB env",
                   "scripts/benchmark.py"),
     "train": ("etb_gym.rl.train", "train a Stable-Baselines3 agent on an ETB env (resumable)", None),
     "diagnose": ("etb_gym.diagnose.cli", "find where recordings and the model disagree, name and fit the "
@@ -31,7 +31,7 @@ COMMANDS: dict[str, tuple[str, str, str | None]] = {
     "speed": ("etb_gym.speed", "measure steps/s of the envs side by side with Pendulum-v1 and gym-electric-motor",
               "scripts/bench_speed.py"),
     "reproduce": ("etb_gym.paper", "regenerate analogues of the paper's Figs. 8, 12, 13, 14, 15", None),
-    "design": ("etb_gym.controllers.design", "design the PID and sliding-mode gains on the linearized plant "
+    "design": ("etb_gym.controllers.design_report", "design the PID and sliding-mode gains on the linearized plant "
                "(margins, Bode and step plots)", "scripts/design_controllers.py"),
 }
 

@@ -1,11 +1,11 @@
 #!/usr/bin/env python
-"""Controller benchmark (thin wrapper of ``etb-gym benchmark``, i.e. :func:`etb_gym.benchmark.main`).
+"""Controller benchmark (thin wrapper of ``etb-gym benchmark``, i.e. :func:`etb_gym.benchmark_cli.main`).
 
     python scripts/benchmark.py --help
 """
 import sys
 
-from etb_gym.benchmark import main
+from etb_gym.benchmark_cli import main
 
 if __name__ == "__main__":
     sys.exit(main())

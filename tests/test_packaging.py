@@ -16,7 +16,7 @@ PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
 PROJECT = PYPROJECT["project"]
 SETUP = PYPROJECT["tool"]["setuptools"]
 # known offenders that their owners are fixing in this round; the lead empties these after merging
-MATPLOTLIB_USE_ALLOWED = {"etb_gym/bench_report.py"}
+MATPLOTLIB_USE_ALLOWED: set = set()
 
 
 def _floor(req: str) -> tuple:
