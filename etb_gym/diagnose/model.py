@@ -24,6 +24,11 @@ from .measurement import SensorModel, noise_floor, detect_resolution
 SEGMENT_MIN_S = 0.25
 
 
+class SimulationFailed(ValueError):
+    """The model cannot be simulated along a recording (its state became non-finite, or a parameter is
+    outside its valid range); the message says which recording and when."""
+
+
 @dataclasses.dataclass
 class RecData:
     rec: Recording
@@ -92,7 +97,7 @@ class Spec:
             self.nominal = nominal_params(self.base)
         self.params: list[tuple[str, FitParam]] = [("nominal", p) for p in self.nominal]
         for c in self.candidates:
-            self.params += [(c.id, p) for p in c.fit]
+            self.params += [(c.id, p) for p in c.params_for(self.base)]
 
     def with_candidate(self, c: Candidate) -> "Spec":
         return Spec(self.base, tuple(self.candidates) + (c,), self.nominal)
@@ -154,8 +159,9 @@ def _persistent_slices(plant: Plant) -> list[tuple[int, int]]:
     return out
 
 
-def simulate(plant: Plant, sensor: SensorModel, data: Data):
-    """Predicted reading (deg) and current (A) per recording; non-finite where the simulation failed."""
+def simulate(plant: Plant, sensor: SensorModel, data: Data, raise_on_failure: bool = False):
+    """Predicted reading (deg) and current (A) per recording. Where the simulation fails: None, or
+    :class:`SimulationFailed` naming the recording and the time with ``raise_on_failure``."""
     fns = plant.engine.fns
     keep = _persistent_slices(plant)
     R = float(getattr(plant.drive.params, "resistance_ohm", 1.0))
@@ -187,6 +193,9 @@ def simulate(plant: Plant, sensor: SensorModel, data: Data):
             done = fns.simulate(x0, rd.duty[a:b], rd.supply_V[a:b], plant.P, float(r.t_s[a]), plant.control_period_s,
                                 plant.substeps, plant.supply.switching, plant.supply.pwm_frequency_hz, X, A)
             if done < m:
+                if raise_on_failure:
+                    raise SimulationFailed(f"the simulated state became non-finite in {r.name} at "
+                                           f"t = {float(r.t_s[a + done]):.3f} s")
                 return None
             stop = m + 1 if last else m
             ang[a:a + stop] = np.degrees(X[:stop, 0])
@@ -205,6 +214,12 @@ def _layout(data: Data, masks, with_current):
         yield k, rd, m, "angle"
         if with_current and rd.rec.current_A is not None and data.current_weight > 0:
             yield k, rd, m, "current"
+
+
+def residual_size(data: Data, masks=None, with_current=True) -> int:
+    """The length of :func:`residuals`' vector (known before any simulation)."""
+    return sum(rd.rec.n if masks is None else int(np.count_nonzero(masks[k]))
+               for k, rd, _, _ in _layout(data, masks, with_current))
 
 
 def residuals(pred, data: Data, masks=None, with_current=True) -> np.ndarray:
