@@ -40,6 +40,7 @@ class RecData:
     rest: list              # rest runs (a, b)
     current_sigma_A: float
     tol_deg: np.ndarray | None = None      # the model's own integration error along the recording
+    closed_loop_evidence: float = 0.0      # see closed_loop_evidence; > LOOP_Z: recorded in closed loop
 
 
 @dataclasses.dataclass
@@ -51,6 +52,27 @@ class Data:
     @property
     def noise_deg(self) -> float:
         return float(math.sqrt(np.mean([r.noise_deg ** 2 for r in self.recs])))
+
+
+LOOP_LAGS = 8
+LOOP_Z = 3.0              # closed loop when max |corr(dV[k+l], dy[k])| over l = 0..LOOP_LAGS exceeds LOOP_Z/sqrt(n)
+
+
+def closed_loop_evidence(rec) -> float:
+    """How strongly the recorded voltage reacts to the reading: max over lags l = 0..LOOP_LAGS of
+    |corr(dV[k+l], dy[k])| x sqrt(n) (d: sample-to-sample increments). In open loop the voltage does not
+    depend on the reading's noise: 0.7-1.8 on the proof's open-loop recordings; a controller acting on the
+    readings feeds their noise into the voltage: 4-30 on its closed-loop ones (three PID tunings)."""
+    dv = np.diff(np.asarray(rec.voltage_V, float))
+    dy = np.diff(np.asarray(rec.angle_deg, float))
+    n = dv.size
+    best = 0.0
+    for lag in range(0, min(LOOP_LAGS, n - 3) + 1):
+        a, b = dv[lag:], dy[:n - lag]
+        if a.size < 3 or np.std(a) == 0 or np.std(b) == 0:
+            continue
+        best = max(best, abs(float(np.corrcoef(a, b)[0, 1])))
+    return best * math.sqrt(max(n, 1))
 
 
 def prepare(recordings, nominal_supply_V: float, segment_min_s: float = SEGMENT_MIN_S,
@@ -80,7 +102,8 @@ def prepare(recordings, nominal_supply_V: float, segment_min_s: float = SEGMENT_
         if r.current_A is not None:
             from .measurement import second_difference_sigma
             cs = max(second_difference_sigma(r.current_A), 1e-4)
-        out.append(RecData(r, duty, Vs, bounds, max(sigma, 1e-4), q, rest, cs))
+        out.append(RecData(r, duty, Vs, bounds, max(sigma, 1e-4), q, rest, cs,
+                           closed_loop_evidence=closed_loop_evidence(r)))
     return Data(out, float(np.median(dts)), current_weight)
 
 

@@ -184,6 +184,9 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
     result = assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor, opts,
                       time.perf_counter() - t_start)
     result.report["skipped_candidates"] = skipped       # [{id, round, reason}]: could not be simulated
+    from .model import LOOP_Z
+    result.report["loop"] = {rd.rec.name: "closed" if rd.closed_loop_evidence > LOOP_Z else "open"
+                             for rd in data.recs}
     if out is not None:
         from .report import write
         write(result, Path(out))
