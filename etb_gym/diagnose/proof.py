@@ -456,7 +456,7 @@ def _atomic(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-DOCS = {"docs/diagnosis.md": ("targets", "families", "pairs", "loops"), "README.md": ("targets",)}
+DOCS = {"docs/diagnosis.md": ("targets", "families", "pairs"), "README.md": ("targets",)}
 
 
 def update_docs(root: Path, blocks: dict) -> list:
@@ -637,8 +637,7 @@ def run(argv=None):
         _atomic(out / "proof.md", txt + "\n")
     if a.update_docs:
         for f in update_docs(Path(__file__).resolve().parents[2], {"targets": targets(rows), "families": table(fam),
-                                                                  "pairs": pairs or "(no two-effect runs)",
-                                                                  "loops": loops or "(no runs)"}):
+                                                                  "pairs": pairs or "(no two-effect runs)"}):
             print(f"updated {f}")
     return rows, fam
 
