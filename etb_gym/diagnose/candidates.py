@@ -4,11 +4,19 @@ A candidate's fitted parameters start at ``init`` and are searched inside [lower
 coordinates x = (p - init) / scale (so finite-difference steps and trust regions are comparable across
 parameters). ``ties`` copy a plant parameter into the effect (the spring/stop corrections repeat the
 plant's own spring/stop) so they follow the calibrated nominal values.
+
+Any nameplate: the numbers in the table below are written for the default 3B plant; each parameter names
+the nameplate quantity ``ref`` they are proportional to (stall torque, torque constant, friction level,
+resistance, inductance, current, heating power, spring preload and rate, stop stiffness) or, for the stop
+angles, the stop they are measured from. :meth:`Candidate.params_for` rescales them to the plant being
+diagnosed (:func:`nameplate`), so starting values, steps and bounds follow the user's plant file.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
+
+import numpy as np
 
 from ..components import effects as fx
 
@@ -22,6 +30,23 @@ class FitParam:
     scale: float
     unit: str
     follows: tuple = ()  # nominal only: other "component.field" keys scaled by the same ratio
+    ref: str = ""        # nameplate quantity the numbers are written for (see NAMEPLATE_3B); "" absolute
+    cap: str = ""        # nameplate quantity (times CAP_FRACTION) the upper bound may not exceed
+
+    def for_nameplate(self, plate: dict) -> "FitParam":
+        """This parameter with init, bounds and scale moved to the nameplate ``plate`` (see :func:`nameplate`)."""
+        p = self
+        if p.ref in SHIFT_REFS:
+            d = plate[p.ref] - NAMEPLATE_3B[p.ref]
+            p = dataclasses.replace(p, init=p.init + d, lower=p.lower + d, upper=p.upper + d)
+        elif p.ref:
+            f = max(plate[p.ref] / NAMEPLATE_3B[p.ref], MIN_RATIO)
+            p = dataclasses.replace(p, init=p.init * f, lower=p.lower * f, upper=p.upper * f, scale=p.scale * f)
+        if p.cap:
+            hi = min(p.upper, CAP_FRACTION * plate[p.cap])
+            init = p.init if p.init < hi else (0.5 * hi if hi > 0 else 0.5 * (p.lower + hi))
+            p = dataclasses.replace(p, upper=hi, init=init)
+        return p
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,28 +63,89 @@ class Candidate:
     def sensor(self) -> bool:
         return self.component is None
 
+    def params_for(self, plant) -> tuple:
+        """The fitted parameters with starting values, bounds and scales for ``plant``'s nameplate."""
+        plate = nameplate(plant)
+        return tuple(p.for_nameplate(plate) for p in self.fit)
+
+
+# ------------------------------------------------------------------------------------------ nameplate
+MIN_RATIO = 0.05          # a nameplate quantity of 0 (no spring, say) still leaves the parameter a scale
+CAP_FRACTION = 0.94
+SHIFT_REFS = ("open_stop_rad", "closed_stop_rad")
+_OPTIONAL = ("friction_Nm", "preload_Nm", "rate_Nm_per_rad", "stop_stiffness_Nm_per_rad")
+
+
+def nameplate(plant, _base=None) -> dict:
+    """The plant quantities the candidates' numbers scale with (SI units). For the default 3B plant this is
+    NAMEPLATE_3B. Electrical quantities come from the drive, mechanical ones from the spring, friction
+    and stops (missing components: the 3B value)."""
+    d = plant.drive
+    q = d.params
+    R = float(q.resistance_ohm)
+    V = float(plant.supply.voltage_V)
+    lo = plant.angle_min_rad if math.isfinite(plant.angle_min_rad) else 0.0
+    hi = plant.angle_max_rad if math.isfinite(plant.angle_max_rad) else math.pi / 2
+    phis = np.linspace(lo, hi, 7)
+    k = float(np.mean(np.abs(d.torque_constant(phis))))
+    i_max = V / R
+    L = np.asarray(d.inductance(np.linspace(0.0, 1.5 * i_max, 9)[:, None], phis[None, :]), float)
+    out = {k: NAMEPLATE_3B[k] for k in _OPTIONAL} if _base is None else {}
+    out.update(resistance_ohm=R, supply_V=V, current_A=i_max, power_W=V * i_max, inv_power_W=1.0 / (V * i_max),
+               torque_constant_Nm_per_A=k, stall_torque_Nm=k * i_max,
+               inductance_H=float(np.asarray(d.inductance(0.0, lo))),
+               min_inductance_H=float(np.min(L)), open_stop_rad=hi, closed_stop_rad=lo)
+    if plant.friction is not None:
+        f = plant.friction.params.to_dict()
+        if "coulomb_Nm" in f:
+            out["friction_Nm"] = float(f["coulomb_Nm"])
+        elif "viscous_Nm_s_per_rad" in f:                  # viscous only: the torque at 1 rad/s
+            out["friction_Nm"] = float(f["viscous_Nm_s_per_rad"]) * 1.0
+    if plant.spring is not None:
+        sp = plant.spring.params
+        out.update(preload_Nm=float(sp.preload_Nm), rate_Nm_per_rad=float(sp.rate_Nm_per_rad))
+    if plant.stops is not None:
+        out["stop_stiffness_Nm_per_rad"] = float(plant.stops.params.stiffness_Nm_per_rad)
+    return out
+
+
+class _Nameplate3B(dict):
+    """:func:`nameplate` of the default 3B plant, computed on first use (the candidates' numbers are written
+    for it, so for 3B every parameter keeps exactly the numbers of the table)."""
+
+    def __missing__(self, key):
+        if not dict.__len__(self):
+            from ..plant import make_plant
+            self.update(nameplate(make_plant("3B"), _base={}))
+            return self[key]
+        raise KeyError(key)
+
+
+NAMEPLATE_3B = _Nameplate3B()
+
 
 P = FitParam
 R = math.radians
 CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
     Candidate("coil_heating", "electrical", fx.CoilHeating.description,
-              (P("heat_capacity_J_per_K", 20.0, 0.5, 2000.0, 10.0, "J/K"),
-               P("thermal_resistance_K_per_W", 5.0, 0.2, 200.0, 5.0, "K/W")),
+              (P("heat_capacity_J_per_K", 20.0, 0.5, 2000.0, 10.0, "J/K", ref="power_W"),
+               P("thermal_resistance_K_per_W", 5.0, 0.2, 200.0, 5.0, "K/W", ref="inv_power_W")),
               fx.CoilHeating, ties=(("cold_resistance_ohm", "drive.resistance_ohm"),)),
     Candidate("supply_drop", "electrical", fx.SupplyDrop.description,
-              (P("series_resistance_ohm", 0.02, -0.5, 3.0, 0.1, "ohm"),
+              (P("series_resistance_ohm", 0.02, -0.5, 3.0, 0.1, "ohm", ref="resistance_ohm"),
                P("forward_drop_V", 0.05, -1.0, 3.0, 0.2, "V")), fx.SupplyDrop),
     Candidate("torque_constant_error", "electrical", fx.TorqueConstantError.description,
-              (P("delta_Nm_per_A", 0.0, -0.08, 0.08, 0.01, "N m/A"),), fx.TorqueConstantError),
+              (P("delta_Nm_per_A", 0.0, -0.08, 0.08, 0.01, "N m/A", ref="torque_constant_Nm_per_A"),), fx.TorqueConstantError),
     Candidate("inductance_saturation", "electrical", fx.InductanceSaturation.description,
-              (P("inductance_drop_H", 0.001, -0.02, 0.0045, 0.002, "H"),
-               P("saturation_current_A", 1.5, 0.2, 10.0, 1.0, "A")), fx.InductanceSaturation),
+              (P("inductance_drop_H", 0.001, -0.02, 0.0045, 0.002, "H", ref="inductance_H",
+                 cap="min_inductance_H"),
+               P("saturation_current_A", 1.5, 0.2, 10.0, 1.0, "A", ref="current_A")), fx.InductanceSaturation),
     Candidate("shaft_flux_loss", "magnetic", fx.ShaftFluxLoss.description,
-              (P("loss_at_open_Nm_per_A", 0.01, -0.05, 0.12, 0.01, "N m/A"),
+              (P("loss_at_open_Nm_per_A", 0.01, -0.05, 0.12, 0.01, "N m/A", ref="torque_constant_Nm_per_A"),
                P("exponent", 2.0, 0.5, 8.0, 1.0, "1")), fx.ShaftFluxLoss),
     Candidate("spring_asymmetry", "mechanical", fx.SpringAsymmetry.description,
-              (P("closing_preload_delta_Nm", 0.0, -0.14, 0.3, 0.02, "N m"),
-               P("closing_rate_delta_Nm_per_rad", 0.0, -0.3, 1.5, 0.2, "N m/rad")), fx.SpringAsymmetry,
+              (P("closing_preload_delta_Nm", 0.0, -0.14, 0.3, 0.02, "N m", ref="preload_Nm"),
+               P("closing_rate_delta_Nm_per_rad", 0.0, -0.3, 1.5, 0.2, "N m/rad", ref="rate_Nm_per_rad")), fx.SpringAsymmetry,
               ties=(("limp_home_rad", "spring.limp_home_rad"),
                     ("limp_home_compliance_rad", "spring.limp_home_compliance_rad"))),
     Candidate("backlash", "mechanical", fx.Backlash.description,
@@ -69,22 +155,22 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
                     ("limp_home_compliance_rad", "spring.limp_home_compliance_rad"),
                     ("limp_home_damping_Nm_s_per_rad", "spring.limp_home_damping_Nm_s_per_rad"))),
     Candidate("end_stop_compliance", "mechanical", fx.EndStopCompliance.description,
-              (P("open_rad", R(90.0), R(84.0), R(96.0), R(0.5), "rad"),
-               P("closed_rad", 0.0, R(-3.0), R(3.0), R(0.2), "rad"),
-               P("stiffness_Nm_per_rad", 1000.0, 20.0, 1e5, 300.0, "N m/rad")), fx.EndStopCompliance,
+              (P("open_rad", R(90.0), R(84.0), R(96.0), R(0.5), "rad", ref="open_stop_rad"),
+               P("closed_rad", 0.0, R(-3.0), R(3.0), R(0.2), "rad", ref="closed_stop_rad"),
+               P("stiffness_Nm_per_rad", 1000.0, 20.0, 1e5, 300.0, "N m/rad", ref="stop_stiffness_Nm_per_rad")), fx.EndStopCompliance,
               ties=(("nominal_closed_rad", "stops.closed_rad"), ("nominal_open_rad", "stops.open_rad"),
                     ("nominal_stiffness_Nm_per_rad", "stops.stiffness_Nm_per_rad"),
                     ("nominal_damping_Nm_s_per_rad", "stops.damping_Nm_s_per_rad"),
                     ("damping_Nm_s_per_rad", "stops.damping_Nm_s_per_rad"))),
     Candidate("airflow_torque", "mechanical", fx.AirflowTorque.description,
-              (P("quadratic_Nm", 0.0, -0.6, 0.6, 0.02, "N m"),
-               P("cubic_Nm", 0.0, -0.6, 0.6, 0.02, "N m")), fx.AirflowTorque),
+              (P("quadratic_Nm", 0.0, -0.6, 0.6, 0.02, "N m", ref="stall_torque_Nm"),
+               P("cubic_Nm", 0.0, -0.6, 0.6, 0.02, "N m", ref="stall_torque_Nm")), fx.AirflowTorque),
     Candidate("stribeck_friction", "friction", fx.StribeckFriction.description,
-              (P("stiction_Nm", 0.01, 0.0, 0.4, 0.02, "N m"),
+              (P("stiction_Nm", 0.01, 0.0, 0.4, 0.02, "N m", ref="friction_Nm"),
                P("stribeck_velocity_rad_s", 0.05, 0.002, 3.0, 0.05, "rad/s")), fx.StribeckFriction),
     Candidate("angle_dependent_friction", "friction", fx.AngleDependentFriction.description,
-              (P("slope_Nm", 0.0, -0.3, 0.3, 0.02, "N m"),
-               P("curvature_Nm", 0.0, -0.8, 0.8, 0.05, "N m")), fx.AngleDependentFriction),
+              (P("slope_Nm", 0.0, -0.3, 0.3, 0.02, "N m", ref="friction_Nm"),
+               P("curvature_Nm", 0.0, -0.8, 0.8, 0.05, "N m", ref="friction_Nm")), fx.AngleDependentFriction),
     Candidate("sensor_offset_gain", "sensing", "position sensor offset or gain error",
               (P("offset_deg", 0.0, -10.0, 10.0, 0.1, "deg"), P("gain", 1.0, 0.7, 1.3, 0.01, "1"))),
     Candidate("sensor_delay", "sensing", "transport delay in the position measurement",

@@ -49,14 +49,21 @@ def _spec(base_dict, nominal, ids) -> Spec:
     return Spec(cache[key], tuple(CANDIDATES[c] for c in ids), nominal)
 
 
+class Skipped(str):
+    """A task's result when its model could not be simulated (or built): the reason, a sentence."""
+
+
 def _task(args):
     kind, base_dict, nominal, ids, x0, nfev = args
     data = _CTX["data"]
-    spec = _spec(base_dict, nominal, ids)
-    if kind == "fit":
-        fr = F.fit(spec, data, x0, max_nfev=nfev)
-        return fr.x, fr.rss, fr.m, fr.jac, fr.nfev, fr.tau_int, fr.block_scores
-    return F.cross_validate(spec, data, x0, max_nfev=nfev)
+    try:
+        spec = _spec(base_dict, nominal, ids)
+        if kind == "fit":
+            fr = F.fit(spec, data, x0, max_nfev=nfev)
+            return fr.x, fr.rss, fr.m, fr.jac, fr.nfev, fr.tau_int, fr.block_scores
+        return F.cross_validate(spec, data, x0, max_nfev=nfev)
+    except (ValueError, TypeError, FloatingPointError, ZeroDivisionError, OverflowError, np.linalg.LinAlgError) as e:
+        return Skipped(str(e) or type(e).__name__)
 
 
 @dataclasses.dataclass
@@ -108,9 +115,19 @@ def extend(x_old: np.ndarray, spec: Spec) -> np.ndarray:
 
 
 def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, significant, max_effects: int = 3,
-           progress=None, log=print) -> tuple[F.FitResult, list]:
-    """Greedy forward selection of effects; returns the final fit and the accepted steps in order."""
+           progress=None, log=print, skipped: list | None = None) -> tuple[F.FitResult, list]:
+    """Greedy forward selection of effects; returns the final fit and the accepted steps in order.
+    A candidate whose model cannot be simulated is left out and appended to ``skipped`` as
+    {"id", "round", "reason"} (the report says so)."""
     steps = []
+    skipped = [] if skipped is None else skipped
+    dropped: set = set()
+
+    def skip(c, rnd, why):
+        dropped.add(c)
+        skipped.append({"id": c, "round": rnd + 1, "reason": str(why)})
+        log(f"  {c}: skipped ({why})")
+
     base = cur.spec.base
     base_dict = base.to_dict()
     nominal = cur.spec.nominal
@@ -118,7 +135,7 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         if not significant(cur):
             break
         active = tuple(c.id for c in cur.spec.candidates)
-        remaining = [c for c in candidate_ids if c not in active and CANDIDATES[c].fit]
+        remaining = [c for c in candidate_ids if c not in active and c not in dropped and CANDIDATES[c].fit]
         if not remaining:
             break
         screen_dict = dict(base_dict, substeps=min(SCREEN_SUBSTEPS, base.substeps))
@@ -129,9 +146,16 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         if progress is not None:
             progress.set_description(f"round {rnd + 1}: screening {len(tasks) - 1} candidates")
         res = runner.map(tasks, progress)
+        if isinstance(res[0], Skipped):         # the current model failed at the screening step: stop here
+            log(f"  the current model cannot be refitted at {SCREEN_SUBSTEPS} substeps ({res[0]}): selection stops")
+            break
         ref = F.FitResult(cur.spec, *res[0])
         screened = []
-        for c, (x, rss, m, jac, nfev, tau, bs) in zip(remaining, res[1:]):
+        for c, r in zip(remaining, res[1:]):
+            if isinstance(r, Skipped):
+                skip(c, rnd, r)
+                continue
+            x, rss, m, jac, nfev, tau, bs = r
             spec = cur.spec.with_candidate(CANDIDATES[c])
             fr = F.FitResult(spec, x, rss, m, jac, nfev, tau, bs)
             screened.append((dbic(fr, ref), c, fr))
@@ -146,13 +170,29 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         cv_tasks += [("cv", base_dict, nominal, active + (c,), fr.x, SCREEN_NFEV) for _, c, fr in top]
         cvs = runner.map(cv_tasks, progress)
         cv0 = cvs[0]
-        gains = [(1.0 - cv / cv0 if cv0 > 0 else 0.0, d, c, fr) for cv, (d, c, fr) in zip(cvs[1:], top)]
+        if isinstance(cv0, Skipped):
+            log(f"  the current model cannot be cross-validated ({cv0}): selection stops")
+            break
+        gains = []
+        for cv, (d, c, fr) in zip(cvs[1:], top):
+            if isinstance(cv, Skipped):
+                skip(c, rnd, cv)
+            else:
+                gains.append((1.0 - cv / cv0 if cv0 > 0 else 0.0, d, c, fr))
         log("  held-out: " + ", ".join(f"{c} {g:+.0%}" for g, _, c, _ in gains))
         gains = [g for g in gains if g[0] >= CV_MIN_GAIN]
         if not gains:
             break
-        g, d, c, fr = max(gains, key=lambda s: s[0])
-        full = F.FitResult(fr.spec, *runner.map([("fit", base_dict, nominal, active + (c,), fr.x, FULL_NFEV)])[0])
+        full = None
+        for g, d, c, fr in sorted(gains, key=lambda s: -s[0]):      # the best whose full fit simulates
+            r = runner.map([("fit", base_dict, nominal, active + (c,), fr.x, FULL_NFEV)])[0]
+            if isinstance(r, Skipped):
+                skip(c, rnd, r)
+                continue
+            full = F.FitResult(fr.spec, *r)
+            break
+        if full is None:
+            break
         ratio = angle_rms_ratio(full, cur, data)
         if ratio > 1.0 - RMS_MIN_GAIN:
             log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f}): not accepted")

@@ -23,7 +23,7 @@ import warnings
 import numpy as np
 from scipy.optimize import least_squares
 
-from .model import Data, Spec, residual_blocks, residuals, simulate
+from .model import Data, Spec, SimulationFailed, residual_blocks, residual_size, residuals, simulate
 
 FAIL = 1e3
 FOLD_BLOCK_S = 0.5
@@ -101,26 +101,28 @@ def fold_masks(data: Data, block_s: float = FOLD_BLOCK_S):
 
 
 def make_fun(spec: Spec, data: Data, masks=None, with_current: bool = True):
-    size = None
+    """The residual function of normalized x. A parameter vector whose simulation fails (the state becomes
+    non-finite, a parameter leaves its valid range) gets the residual FAIL everywhere, so the optimizer
+    steps back; ``fun.failure`` holds the last failure's reason (a sentence), None after a success."""
+    size = residual_size(data, masks, with_current)
 
     def fun(x):
-        nonlocal size
         try:
             plant, sensor = spec.build(x)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                pred = simulate(plant, sensor, data)
-        except (ValueError, FloatingPointError):
-            pred = None
-        if pred is None:
+                pred = simulate(plant, sensor, data, raise_on_failure=True)
+        except (ValueError, TypeError, FloatingPointError, ZeroDivisionError, OverflowError) as e:
+            fun.failure = str(e) or type(e).__name__
             return np.full(size, FAIL)
         r = residuals(pred, data, masks, with_current)
         bad = ~np.isfinite(r)
         if bad.any():
             r[bad] = FAIL
-        size = r.size
+        fun.failure = None
         return r
 
+    fun.failure = None
     return fun
 
 
@@ -132,6 +134,9 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
     x0 = np.clip(x0, lo + 1e-9, hi - 1e-9)
     fun = make_fun(spec, data, masks)
     r0 = fun(x0)
+    if fun.failure is not None:
+        raise SimulationFailed(f"the model with {', '.join(c.id for c in spec.candidates) or 'no added effect'} "
+                               f"cannot be simulated at its starting parameters: {fun.failure}")
     if len(x0) == 0:
         return FitResult(spec, x0, float(r0 @ r0), r0.size, None, 1, integrated_time(r0))
     res = least_squares(fun, x0, bounds=(lo, hi), method="trf", diff_step=diff_step, x_scale=1.0,

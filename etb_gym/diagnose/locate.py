@@ -42,19 +42,26 @@ def regimes(rec, limp_home_deg: float, current_A=None, stops_deg=(0.0, 90.0)) ->
     v = np.gradient(smooth(y, 15), dt)                    # deg/s
     moving = np.abs(v) > 20.0
     out = []
+    top = max(90.0, float(stops_deg[1]))
     for lo, hi in ((0, 10), (10, 30), (30, 60), (60, 90)):
-        out.append(Regime(f"angle {lo}-{hi} deg", (y >= lo) & (y < hi + (1 if hi == 90 else 0))))
+        last = hi == 90
+        lo_m = min(lo, float(stops_deg[0]) - 1.0) if lo == 0 else lo      # the bands cover the whole stroke
+        out.append(Regime(f"angle {lo}-{top if last else hi:.0f} deg",
+                          (y >= lo_m) & (y < (top + 1.0 if last else hi))))
     out.append(Regime("near limp-home (+-2 deg)", np.abs(y - limp_home_deg) < 2.0))
-    out.append(Regime("near the closed stop (< 1.5 deg)", y < stops_deg[0] + 1.5))
-    out.append(Regime("near the open stop (> 88 deg)", y > stops_deg[1] - 2.0))
+    out.append(Regime(f"near the closed stop (< {stops_deg[0] + 1.5:.1f} deg)", y < stops_deg[0] + 1.5))
+    out.append(Regime(f"near the open stop (> {stops_deg[1] - 2.0:.1f} deg)", y > stops_deg[1] - 2.0))
     out.append(Regime("opening", v > 20.0))
     out.append(Regime("closing", v < -20.0))
     out.append(Regime("at rest", ~moving))
     out.append(Regime("fast (> 300 deg/s)", np.abs(v) > 300.0))
-    if current_A is not None:
-        a = np.abs(current_A)
-        out.append(Regime("low current (< 1 A)", a < 1.0))
-        out.append(Regime("high current (> 3 A)", a > 3.0))
+    if current_A is not None:           # levels relative to the recording's own peak current (any nameplate)
+        a = np.abs(np.asarray(current_A, float))
+        fin = a[np.isfinite(a)]
+        peak = float(np.percentile(fin, 99)) if fin.size else 0.0
+        lo_a, hi_a = (0.1 * peak, 0.3 * peak) if peak > 0 else (1.0, 3.0)
+        out.append(Regime(f"low current (< {lo_a:.2g} A)", a < lo_a))
+        out.append(Regime(f"high current (> {hi_a:.2g} A)", a > hi_a))
     n = y.size
     for k, nm in enumerate(("early in the recording", "middle of the recording", "late in the recording")):
         m = np.zeros(n, bool)

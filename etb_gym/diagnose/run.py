@@ -20,7 +20,7 @@ from . import locate as L
 from .candidates import CANDIDATES, FITTED_CANDIDATES
 from .explain import Runner, select
 from .measurement import DEFAULT_RESOLUTION_DEG
-from .model import Data, Spec, angle_residuals_deg, prepare, simulate
+from .model import Data, SimulationFailed, Spec, angle_residuals_deg, prepare, simulate
 
 SCHEMA = "etb-gym/diagnosis/1"
 RMS_K = 1.5          # the recording matches when the RMS residual is within RMS_K x the noise floor
@@ -154,10 +154,16 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
     n_fit = len([c for c in opts.candidates if CANDIDATES[c].fit])
     bar = tqdm(total=1 + opts.max_effects * (n_fit + 5), disable=not opts.progress, unit="fit", leave=False)
     runner = Runner(data, opts.jobs)
+    skipped: list = []
     try:
         bar.set_description("calibrating the nominal model")
         spec0 = Spec(base)
-        nominal = F.fit(spec0, data, max_nfev=40)
+        try:
+            nominal = F.fit(spec0, data, max_nfev=40)
+        except SimulationFailed as e:
+            raise SimulationFailed(f"the nominal model ({base.model or 'plant file'}) cannot be simulated on the "
+                                   f"recorded voltage, so it cannot be calibrated: {e}. Check the plant's "
+                                   "parameters and the recording's units (time in s, voltage in V)") from None
         bar.update(1)
         numerical_tolerance(spec0, nominal.x, data)
         res0 = angle_residuals_deg(simulate(*spec0.build(nominal.x), data), data)
@@ -169,7 +175,7 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
         if sig0:
             final, steps = select(nominal, data, runner, [c for c in opts.candidates if CANDIDATES[c].fit],
-                                  significant, opts.max_effects, bar, log)
+                                  significant, opts.max_effects, bar, log, skipped)
         else:
             final, steps = nominal, []
     finally:
@@ -180,6 +186,10 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
     from .report import assemble
     result = assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor, opts,
                       time.perf_counter() - t_start)
+    result.report["skipped_candidates"] = skipped       # [{id, round, reason}]: could not be simulated
+    from .model import LOOP_Z
+    result.report["loop"] = {rd.rec.name: "closed" if rd.closed_loop_evidence > LOOP_Z else "open"
+                             for rd in data.recs}
     if out is not None:
         from .report import write
         write(result, Path(out))

@@ -54,13 +54,14 @@ def open_loop_duty(duration_s: float, rng: np.random.Generator, dt: float = 1e-3
     return np.clip(np.concatenate(parts)[:n], -1, 1)
 
 
-def reference_profile(duration_s: float, rng: np.random.Generator, dt: float = 1e-3) -> np.ndarray:
-    """Reference angle [deg] for closed-loop runs: steps and ramps between 1 and 85 deg."""
+def reference_profile(duration_s: float, rng: np.random.Generator, dt: float = 1e-3, lo_deg: float = 1.0,
+                      hi_deg: float = 85.0) -> np.ndarray:
+    """Reference angle [deg] for closed-loop runs: steps and ramps between ``lo_deg`` and ``hi_deg``."""
     n = int(round(duration_s / dt))
     r = []
-    cur = 5.0
+    cur = lo_deg + 4.0
     while sum(p.size for p in r) < n:
-        tgt = float(rng.uniform(1.0, 85.0))
+        tgt = float(rng.uniform(lo_deg, hi_deg))
         if rng.random() < 0.3:
             m = int(rng.uniform(0.3, 0.8) / dt)
             r.append(np.linspace(cur, tgt, m))
@@ -100,9 +101,12 @@ def closed_loop(plant: Plant, ref_deg: np.ndarray, read, controller=None, enable
 def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float = 10.0, closed: bool = False,
                    noise_deg: float = 0.01, resolution_deg: float = 90.0 / 4096, colour: float = 0.0,
                    offset_deg: float = 0.0, gain: float = 1.0, delay_steps: int = 0,
-                   current_noise_A: float = 0.01, with_current: bool = True, name: str = "rec.csv") -> Recording:
+                   current_noise_A: float = 0.01, with_current: bool = True, name: str = "rec.csv",
+                   controller=None) -> Recording:
     """One rig-like recording of ``plant`` (the truth). ``colour`` in [0, 1): AR(1) coefficient of the noise.
-    Closed loop: the reference PID acts on these same readings (noise, quantization, offset/gain, delay)."""
+    Closed loop: ``controller`` (default: the reference PID designed on the nominal 3B plant; for another
+    nameplate pass one designed on that nameplate) acts on these same readings (noise, quantization,
+    offset/gain, delay)."""
     dt = plant.control_period_s
     nq = int(round(QUIET_S / dt))                    # the rig idles (duty 0) before the run starts
     n = nq + int(round((duration_s - QUIET_S) / dt))
@@ -115,14 +119,16 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
         e = lfilter([1.0], [1.0, -colour], e) * math.sqrt(1 - colour ** 2)
     noise = math.radians(noise_deg) * e / gain
     if closed:
-        ref = reference_profile(duration_s - QUIET_S, rng, dt)[: n - nq]
+        lo, hi = math.degrees(plant.angle_min_rad), math.degrees(plant.angle_max_rad)
+        ref = reference_profile(duration_s - QUIET_S, rng, dt, lo + 1.0, hi - 5.0)[: n - nq]
         lh = math.degrees(plant.limp_home_rad)
         sensor.reset(plant.limp_home_rad + noise[0])
 
         def read(k, phi):
             return math.degrees(sensor.read(phi + noise[k], rng))
 
-        duty, X, y = closed_loop(plant, np.concatenate([np.full(nq, lh), ref]), read, enable_k=nq)
+        duty, X, y = closed_loop(plant, np.concatenate([np.full(nq, lh), ref]), read, controller=controller,
+                                 enable_k=nq)
         cur = X[:, 2]
     else:
         duty = np.concatenate([np.zeros(nq), open_loop_duty(duration_s - QUIET_S, rng, dt)])[:n]
@@ -133,3 +139,67 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
     V = plant.supply.voltage_V
     return Recording(name=name, t_s=t, voltage_V=duty * V, angle_deg=y,
                      current_A=sensor.measure_current(cur, rng) if with_current else None, supply_V=None)
+
+
+# ------------------------------------------------------------------------------------------ other nameplates
+NAMEPLATE_RANGES = {                      # what random_nameplate draws from (uniform; log-uniform for L, J)
+    "drive.resistance_ohm": (0.8, 3.0),
+    "drive.inductance_H": (1e-3, 30e-3),
+    "drive.torque_constant_Nm_per_A": (0.06, 0.25),
+    "rotor.inertia_kg_m2": (12e-6, 80e-6),
+    "spring.limp_home_deg": (2.0, 8.0),
+    "stops.closed_deg": (-1.0, 1.0),
+    "stops.open_deg": (80.0, 95.0),
+    "friction.coulomb_Nm": (0.08, 0.35),
+    "spring.preload_Nm": (0.07, 0.3),
+    "spring.rate_Nm_per_rad": (0.12, 0.8),
+}
+LOG_RANGES = ("drive.inductance_H", "rotor.inertia_kg_m2")
+
+
+def random_nameplate(rng: np.random.Generator, model: str = "3B", **plant_kw) -> Plant:
+    """A throttle of another size: R, L, c_M, J, limp-home, stops, friction and spring levels drawn from
+    NAMEPLATE_RANGES (L and J log-uniform), redrawn until the motor's stall torque beats the spring and the
+    friction at the open stop by 1.8x or more (a throttle that can open fully)."""
+    from ..plant import make_plant
+    for _ in range(200):
+        v = {}
+        for k, (lo, hi) in NAMEPLATE_RANGES.items():
+            v[k] = math.exp(rng.uniform(math.log(lo), math.log(hi))) if k in LOG_RANGES else float(rng.uniform(lo, hi))
+        stall = v["drive.torque_constant_Nm_per_A"] * 12.0 / v["drive.resistance_ohm"]
+        span = math.radians(v["stops.open_deg"] - v["spring.limp_home_deg"])
+        need = v["spring.preload_Nm"] + v["spring.rate_Nm_per_rad"] * span + 1.1 * v["friction.coulomb_Nm"]
+        if stall >= 1.8 * need:
+            break
+    over = {"drive.resistance_ohm": v["drive.resistance_ohm"], "drive.inductance_H": v["drive.inductance_H"],
+            "drive.torque_constant_Nm_per_A": v["drive.torque_constant_Nm_per_A"],
+            "rotor.inertia_kg_m2": v["rotor.inertia_kg_m2"],
+            "spring.limp_home_rad": math.radians(v["spring.limp_home_deg"]),
+            "stops.closed_rad": math.radians(v["stops.closed_deg"]), "stops.open_rad": math.radians(v["stops.open_deg"]),
+            "spring.preload_Nm": v["spring.preload_Nm"], "spring.rate_Nm_per_rad": v["spring.rate_Nm_per_rad"]}
+    p = make_plant(model, **plant_kw)
+    pd = p.params_dict()
+    if "drive.saturation_current_A" in pd:              # saturation at the same fraction of the stall current
+        over["drive.saturation_current_A"] = pd["drive.saturation_current_A"] * (12.0 / v["drive.resistance_ohm"]) / 9.6
+    f = p.friction.params.to_dict() if p.friction is not None else {}
+    if "coulomb_Nm" in f:
+        over["friction.coulomb_Nm"] = v["friction.coulomb_Nm"]
+        if "static_Nm" in f:
+            over["friction.static_Nm"] = v["friction.coulomb_Nm"] * f["static_Nm"] / f["coulomb_Nm"]
+    if p.friction is not None and "bristle_damping_Nm_s_per_rad" in f:     # keep the bristle critically damped
+        over["friction.bristle_damping_Nm_s_per_rad"] = 2.0 * math.sqrt(f["bristle_stiffness_Nm_per_rad"]
+                                                                        * v["rotor.inertia_kg_m2"])
+    return p.with_params(over)
+
+
+def nameplate_file_plant(truth: Plant, rng: np.random.Generator, low: float = 0.10, high: float = 0.20) -> Plant:
+    """What a user's plant file says about ``truth``: the same nameplate and geometry, no concealed effects,
+    but the friction level and the spring preload and rate each off by a random 10-20 % (either sign)."""
+    over = {}
+    pd = truth.params_dict()
+    for k in ("friction.coulomb_Nm", "spring.preload_Nm", "spring.rate_Nm_per_rad"):
+        if k in pd:
+            over[k] = pd[k] * (1.0 + float(rng.uniform(low, high)) * (1.0 if rng.random() < 0.5 else -1.0))
+    if "friction.static_Nm" in pd and "friction.coulomb_Nm" in over:
+        over["friction.static_Nm"] = pd["friction.static_Nm"] * over["friction.coulomb_Nm"] / pd["friction.coulomb_Nm"]
+    return truth.replace(effects=()).with_params(over)

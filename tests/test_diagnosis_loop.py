@@ -1,0 +1,31 @@
+"""Loop detection: a controller acting on the readings feeds their noise into the voltage; an open-loop input
+does not depend on them."""
+import numpy as np
+
+from etb_gym.diagnose.model import LOOP_Z, closed_loop_evidence
+from etb_gym.diagnose.synthetic import make_recording
+from etb_gym.plant import make_plant
+
+
+def test_closed_loop_is_told_from_open_loop_by_the_voltage_reacting_to_the_readings():
+    truth = make_plant("3B", substeps=20)
+    for seed in range(2):
+        o = make_recording(truth, np.random.default_rng(seed), duration_s=3.0, closed=False, noise_deg=0.02)
+        c = make_recording(truth, np.random.default_rng(seed), duration_s=3.0, closed=True, noise_deg=0.02)
+        assert closed_loop_evidence(o) < LOOP_Z < closed_loop_evidence(c)
+
+
+def test_a_fast_plate_of_another_nameplate_in_open_loop_is_not_taken_for_a_loop():
+    """Seed 2 of random_nameplate: the open-loop case closest to the threshold in the measurements (10.8)."""
+    import warnings
+
+    from etb_gym.controllers.pid import PIDController
+    from etb_gym.diagnose.synthetic import nameplate_file_plant, random_nameplate
+    rng = np.random.default_rng(2)
+    truth = random_nameplate(rng, substeps=40)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ctrl = PIDController(model=nameplate_file_plant(truth, rng))
+    o = make_recording(truth, np.random.default_rng(2), duration_s=6.0, closed=False, noise_deg=0.01)
+    c = make_recording(truth, np.random.default_rng(2), duration_s=6.0, closed=True, noise_deg=0.01, controller=ctrl)
+    assert closed_loop_evidence(o) < LOOP_Z < closed_loop_evidence(c)
