@@ -53,8 +53,20 @@ def table_lookup(x, q, off, n, voff):
     return (1.0 - f) * q[voff + lo] + f * q[voff + lo + 1]
 
 
+def _shown(v):
+    """A value as the error message shows it: plain floats, no numpy reprs."""
+    try:
+        return [float(x) for x in np.ravel(np.asarray(v, float))]
+    except (TypeError, ValueError):
+        return v
+
+
 def _as_grid(owner: str, field: str, v, min_size: int = 2, lower=None) -> tuple:
-    a = np.asarray(v, float)
+    try:
+        a = np.asarray(v, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}.{field} = {v!r} is invalid: expected a list of numbers") from None
+    v = _shown(v)
     check(owner, field, v, a.ndim == 1 and a.size >= min_size, f"a list of at least {min_size} numbers")
     check(owner, field, v, bool(np.all(np.isfinite(a))), "finite numbers")
     check(owner, field, v, bool(np.all(np.diff(a) > 0)), "strictly increasing knots")
@@ -64,12 +76,15 @@ def _as_grid(owner: str, field: str, v, min_size: int = 2, lower=None) -> tuple:
 
 
 def _as_values(owner: str, field: str, v, n: int, grid_field: str) -> tuple:
-    a = np.asarray(v, float)
+    try:
+        a = np.asarray(v, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}.{field} = {v!r} is invalid: expected a list of numbers") from None
     check(owner, field, f"a list of {a.size} values", a.ndim == 1 and a.size == n,
           f"one value per knot of {grid_field} ({n})")
     bad = np.flatnonzero(~np.isfinite(a))
     if bad.size:
-        raise ValueError(f"{owner}.{field}[{bad[0]}] = {a[bad[0]]!r} is invalid: expected a finite number")
+        raise ValueError(f"{owner}.{field}[{bad[0]}] = {float(a[bad[0]])!r} is invalid: expected a finite number")
     return tuple(float(x) for x in a)
 
 
