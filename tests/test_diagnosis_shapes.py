@@ -117,7 +117,11 @@ def test_refined_airflow_table_beats_the_polynomial_on_a_gaussian_bump():
     total = np.asarray(tab["torque_Nm"]) + x ** 2 * (vals["airflow_torque.quadratic_Nm"] + vals["airflow_torque.cubic_Nm"] * x)
     true = -0.06 * np.exp(-0.5 * ((phi - math.radians(45.0)) / math.radians(12.0)) ** 2)
     seen = (np.degrees(phi) > 15) & (np.degrees(phi) < 75)
-    assert np.max(np.abs(total - true)[seen]) < 0.015, np.c_[np.degrees(phi), total, true]
+    # up to a straight line in phi, which the refitted spring preload and rate take
+    e = (total - true)[seen]
+    A = np.stack([np.ones(seen.sum()), phi[seen]], axis=1)
+    e = e - A @ np.linalg.lstsq(A, e, rcond=None)[0]
+    assert np.max(np.abs(e)) < 0.012, np.c_[np.degrees(phi[seen]), total[seen], true[seen], e]
     assert poly.id == "airflow_torque"
 
 

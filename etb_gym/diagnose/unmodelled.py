@@ -37,8 +37,9 @@ RMS_GAIN = 0.10          # ... and over the nominal model, as the catalogue effe
 ANGLE_KNOTS = 73         # 1.25 deg over a 90 deg stroke
 PERIODS_DEG = (6.0, 60.0)  # trial periods of the periodogram
 PERIODIC_R2 = 0.6        # share of the detrended table the periodic fit must explain
-MIN_CYCLES = 2.0         # ... over at least this many periods of the visited range
+MIN_CYCLES = 2.5         # ... over at least this many periods of the visited range
 HARMONICS = 3
+GN_ITER = 6              # Gauss-Newton iterations of the generic fit (stops earlier when the gain is < 0.5 %)
 IMPORTANCE_SHARE = 0.3  # a table matters if removing it costs this share of what the dominant one costs
 
 
@@ -82,7 +83,7 @@ def fit_generic(nominal: F.FitResult, data: Data, log=print) -> Generic:
         spec = spec.with_candidate(t.candidate())
     x0 = np.concatenate([x_nom, np.zeros(sum(t.n_coef for t in terms))])
     pb = Problem.make(spec, x0, ("nominal",) + tuple(t.id for t in terms), terms)
-    pf = fit_penalized(pb, data)
+    pf = fit_penalized(pb, data, iters=GN_ITER)
     pbf = dataclasses.replace(pb, x=pf.fit.x)
     h = heldout_error(pbf, data, pf.lams, pf.jac)
     vals = spec.values(pf.fit.x)
@@ -129,7 +130,8 @@ def periodicity(angle_deg: np.ndarray, value: np.ndarray, weight: np.ndarray | N
     var = float(np.sum(w * det ** 2))
     out = {"period_deg": None, "amplitude": 0.0, "r2": 0.0, "cycles": 0.0, "harmonic_share": 0.0,
            "periodic": False}
-    if var <= 0 or span <= 0:
+    tot = float(np.sum(w * (v - np.average(v, weights=w)) ** 2))
+    if var <= 1e-6 * tot or var <= 0 or span <= 0:       # nothing left beyond a smooth trend
         return out
 
     def fit(P):
