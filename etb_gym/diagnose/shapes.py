@@ -259,20 +259,29 @@ def _penalty_scales(J: np.ndarray, pb: Problem) -> list:
     return out
 
 
-def _solve(J, r, pb: Problem, lams, rows=None, theta=None):
-    """Regularized Gauss-Newton step over the free parameters, using residual rows ``rows`` (all if None)."""
+def _gram(J, r, rows=None):
+    """(J^T J, J^T r, r^T r) over the residual rows ``rows`` (all if None)."""
     if rows is not None:
         J, r = J[rows], r[rows]
+    return J.T @ J, J.T @ r, float(r @ r)
+
+
+def _solve_gram(A, g, pb: Problem, lams, theta=None, damping: float = 0.0):
+    """Regularized (Levenberg-damped) Gauss-Newton step from the normal equations of some residual rows."""
     theta = pb.x[pb.free] if theta is None else theta
-    A = J.T @ J
-    g = J.T @ r
     s = max(float(np.mean(np.diag(A))), 1e-12)
     P = pb.penalty(lams)
-    A2 = A + P + 1e-9 * s * np.eye(A.shape[0])
+    A2 = A + P + damping * np.diag(np.diag(A)) + 1e-9 * s * np.eye(A.shape[0])
     try:
         return np.linalg.solve(A2, -(g + P @ theta))
     except np.linalg.LinAlgError:
         return np.linalg.lstsq(A2, -(g + P @ theta), rcond=None)[0]
+
+
+def _solve(J, r, pb: Problem, lams, rows=None, theta=None, damping: float = 0.0):
+    """Regularized Gauss-Newton step over the free parameters, using residual rows ``rows`` (all if None)."""
+    A, g, _ = _gram(J, r, rows)
+    return _solve_gram(A, g, pb, lams, theta, damping)
 
 
 def _clip(pb: Problem, x):
@@ -284,14 +293,21 @@ def _objective(pb: Problem, r: np.ndarray, theta: np.ndarray, lams) -> float:
     return float(r @ r) + float(theta @ pb.penalty(lams) @ theta)
 
 
-def _cv_score(J, r, pb, lams, fold, is_angle) -> float:
-    tot = 0.0
-    for f in (0, 1):
-        d = _solve(J, r, pb, lams, fold == f)
-        test = (fold != f) & is_angle
-        e = r[test] + J[test] @ d
-        tot += float(e @ e)
-    return tot
+class _Folds:
+    """Normal equations of each fold (fit) and of the other fold's angle rows (score), computed once."""
+
+    def __init__(self, J, r, data: Data):
+        fold, is_angle = _row_info(data)
+        self.fit = [_gram(J, r, fold == f)[:2] for f in (0, 1)]
+        self.test = [_gram(J, r, (fold != f) & is_angle) for f in (0, 1)]
+
+    def score(self, pb: Problem, lams) -> float:
+        """Predicted held-out sum of squares |r_B + J_B d_A|^2 + |r_A + J_A d_B|^2 (linearized)."""
+        tot = 0.0
+        for (A, g), (At, gt, ct) in zip(self.fit, self.test):
+            d = _solve_gram(A, g, pb, lams)
+            tot += ct + 2.0 * float(d @ gt) + float(d @ At @ d)
+        return tot
 
 
 def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2) -> tuple[list, list]:
@@ -299,11 +315,11 @@ def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2)
     scored: a common weight first, then each table's weight in turn (coordinate search on the grid)."""
     if not pb.groups:
         return [], []
-    fold, is_angle = _row_info(data)
+    folds = _Folds(J, r, data)
     sc = _penalty_scales(J, pb)
     grid = list(grid)
     absl = lambda rel: [a * b for a, b in zip(rel, sc)]
-    curve = [_cv_score(J, r, pb, absl([g] * len(sc)), fold, is_angle) for g in grid]
+    curve = [folds.score(pb, absl([g] * len(sc))) for g in grid]
     rel = [grid[int(np.argmin(curve))]] * len(sc)
     if len(sc) > 1:
         for _ in range(sweeps):
@@ -312,7 +328,7 @@ def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2)
                 for g in grid:
                     trial = list(rel)
                     trial[k] = g
-                    v = _cv_score(J, r, pb, absl(trial), fold, is_angle)
+                    v = folds.score(pb, absl(trial))
                     if best is None or v < best[0]:
                         best = (v, g)
                 rel[k] = best[1]
@@ -339,7 +355,8 @@ def _coarse(spec: Spec, substeps: int) -> Spec:
 def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int = GN_ITER, jac_substeps: int = JAC_SUBSTEPS,
                   log=None) -> PenalizedFit:
     """Output-error fit of the free parameters with the roughness penalty; the weights by cross-validation
-    (chosen on the first Jacobian, kept for the following iterations). Jacobians are taken at
+    (re-chosen at every Jacobian; the step is damped (Levenberg) if the plain one does not lower the
+    penalized objective). Jacobians are taken at
     ``jac_substeps`` (the residual itself at the model's own step)."""
     x = _clip(pb, pb.x.copy())
     pb = dataclasses.replace(pb, x=x)
@@ -351,14 +368,15 @@ def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int = GN_ITER, j
     for it in range(iters):
         coarse.x = pb.x
         J = jacobian(coarse, data, _residual(coarse.spec, data, pb.x))
-        if lams is None:
-            rel, curve = choose_lambdas(J, r, pb, data, grid)
-            lams = [a * b for a, b in zip(rel, _penalty_scales(J, pb))]
+        rel, c = choose_lambdas(J, r, pb, data, grid)      # re-chosen at every linearization
+        curve = curve or c
+        lams = [a * b for a, b in zip(rel, _penalty_scales(J, pb))]
         theta = pb.x[pb.free]
         obj0 = _objective(pb, r, theta, lams)
-        d = _solve(J, r, pb, lams)
+        A, g, _ = _gram(J, r)
         improved = False
-        for a in (1.0, 0.5, 0.25):
+        for damping, a in ((0.0, 1.0), (0.0, 0.5), (0.1, 1.0), (1.0, 1.0)):
+            d = _solve_gram(A, g, pb, lams, damping=damping)
             xn = pb.x.copy()
             xn[pb.free] = theta + a * d
             xn = _clip(pb, xn)

@@ -252,6 +252,8 @@ def summarize(rows: list) -> dict:
         d = {"runs": len(rs), "detectable": len(det),
              "heldout_within_1p5": sum(r["heldout_twin_over_noise"] <= 1.5 for r in det),
              "heldout_median": float(np.median([r["heldout_twin_over_noise"] for r in det])) if det else None,
+             "heldout_truth_median": float(np.median([r["heldout_truth_over_noise"] for r in det])) if det else None,
+             "heldout_nominal_median": float(np.median([r["heldout_nominal_over_noise"] for r in det])) if det else None,
              "time_median_s": float(np.median([r["time_s"] for r in rs])),
              "time_max_s": float(np.max([r["time_s"] for r in rs]))}
         o = [r for r in det if r["family"] in OUTSIDE]
@@ -263,6 +265,22 @@ def summarize(rows: list) -> dict:
     return out
 
 
+def markdown(summary: dict) -> str:
+    """The summary as a Markdown table (docs/diagnosis-shapes.md)."""
+    lines = ["| family | runs (detectable) | held-out twin <= 1.5x noise | median held-out / noise: nominal, twin, truth | no "
+             "catalogue effect given | period within 10 % | time median / max [s] |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for fam, d in summary.items():
+        det = d["detectable"]
+        pct = lambda k, n: f"{k}/{n} ({100 * k / n:.0f}%)" if n else "-"
+        med = (f"{d['heldout_nominal_median']:.1f}, {d['heldout_median']:.2f}, {d['heldout_truth_median']:.2f}"
+               if d["heldout_median"] is not None else "-")
+        o = d.get("outside_runs", 0)
+        lines.append(f"| {fam} | {d['runs']} ({det}) | {pct(d['heldout_within_1p5'], det)} | {med} | "
+                     f"{pct(d.get('no_catalogue_given', 0), o)} | {pct(d.get('period_within_10pct', 0), o)} | "
+                     f"{d['time_median_s']:.0f} / {d['time_max_s']:.0f} |")
+    return "\n".join(lines)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description="Diagnose truths whose effects are not the candidates' formulas "
                                              "(shapes from the data, physics outside the catalogue) and score.")
@@ -272,7 +290,13 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, default=10.0, help="recording length [s] (default 10)")
     ap.add_argument("--jobs", type=int, default=1, help="parallel fits per diagnosis (default 1)")
     ap.add_argument("--out", type=Path, required=True, help="JSON-lines file of the rows (appended; resumable)")
+    ap.add_argument("--summarize", nargs="*", type=Path, default=None, metavar="ROWS",
+                    help="only print the summary of --out and these further row files (Markdown)")
     a = ap.parse_args(argv)
+    if a.summarize is not None:
+        rows = [json.loads(line) for f in [a.out, *a.summarize] if f.exists() for line in f.read_text().splitlines()]
+        print(markdown(summarize(rows)))
+        return
     if a.seeds < 1 or a.duration <= 1.0:
         ap.error("--seeds must be >= 1 and --duration > 1 s")
     done = set()
