@@ -590,24 +590,26 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     from . import unmodelled as U
     res = Outcome()
     cur = final
-    for st in steps:
+    done = False
+    if len(steps) > 1:
+        # later effects may only have patched the first formula's wrong shape: the first effect with its
+        # table replaces them all when it predicts held-out data as well as all of them
+        first = refine_family(steps[0].fit, steps[0].id, data, log)
+        if first is not None and first.kept:
+            ids = ("nominal",) + tuple(c.id for c in final.spec.candidates)
+            h_all = heldout_error(Problem.make(final.spec, final.x, ids), data)
+            if first.heldout_map <= (1.0 + MIN_GAIN) * h_all:
+                log(f"  {steps[0].id} with its table (held-out {first.heldout_map:.3g}) does as well as all "
+                    f"{len(steps)} effects ({h_all:.3g}): {', '.join(st.id for st in steps[1:])} dropped")
+                res.refinements = [first]
+                cur, steps, done = first.fit, steps[:1], True
+    for st in ([] if done else steps):
         ref = refine_family(cur, st.id, data, log)
         if ref is None:
             continue
         res.refinements.append(ref)
         if ref.kept:
             cur = ref.fit
-    if len(steps) > 1:
-        # later effects may only have patched the first formula's shape: the first effect with its table
-        # replaces them when it predicts held-out data as well
-        first = refine_family(steps[0].fit, steps[0].id, data, log)
-        if first is not None and first.kept:
-            h_all = _heldout_catalogue(nominal, cur, steps, res.refinements, data)
-            if first.heldout_map <= (1.0 + MIN_GAIN) * h_all:
-                log(f"  {steps[0].id} with its table (held-out {first.heldout_map:.3g}) does as well as all "
-                    f"{len(steps)} effects ({h_all:.3g}): {', '.join(st.id for st in steps[1:])} dropped")
-                res.refinements = [first]
-                cur, steps = first.fit, steps[:1]
     if not outside:
         return cur, steps, res
     periodic = False
