@@ -17,6 +17,8 @@ from .effects_friction import (AngleDependentFriction, AngleDependentFrictionPar
                                StribeckFrictionParams)
 from .effects_mechanical import (AirflowTorque, AirflowTorqueParams, Backlash, BacklashParams, EndStopCompliance,
                                  EndStopComplianceParams, SpringAsymmetry, SpringAsymmetryParams)
+from .effects_maps import (MAP_EFFECTS, AngleFrictionMap, AngleTorqueMap, CurrentVoltageMap, SensorMap,  # noqa: F401
+                           SpeedFrictionMap, TorqueConstantMap)  # tables learned from data (diagnosis-shapes.md)
 
 ODE_EFFECTS: dict[str, type[Effect]] = {c.effect_id: c for c in (
     CoilHeating, SupplyDrop, TorqueConstantError, InductanceSaturation, ShaftFluxLoss,

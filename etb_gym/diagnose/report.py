@@ -15,7 +15,7 @@ from .candidates import CANDIDATES
 from .model import angle_residuals_deg, simulate
 
 
-FIGURES = ("residual_time.png", "residual_regimes.png", "angle_fit.png")
+FIGURES = ("residual_time.png", "residual_regimes.png", "angle_fit.png", "shapes.png")
 REPORT_FILES = ("report.json", "report.md", "calibrated_plant.toml") + FIGURES
 
 
@@ -281,6 +281,11 @@ def markdown(result, figures) -> str:
         lines.append("")
         for k, p in e["parameters"].items():
             lines.append(f"- `{k}` = {_fmt(p['value'], p['stderr'], p['unit'])}")
+        if e.get("shape"):
+            sh = e["shape"]
+            lines.append(f"- shape: {sh.get('description', 'a table learned from the data')}; held-out error "
+                         f"{sh.get('heldout_formula', float('nan')):.4g} with the formula, "
+                         f"{sh.get('heldout_map', float('nan')):.4g} with the table (see shapes.png)")
         lines.append("")
     skipped = r.get("skipped_candidates") or []
     if skipped:
@@ -302,6 +307,10 @@ def markdown(result, figures) -> str:
     for t in r["tests"]:
         lines.append(f"| {t['recording']} | {t['ljung_box_p_before']:.2g} | {t['ljung_box_p_after']:.2g} | "
                      f"{t['input_xcorr_before']:.3f} | {t['input_xcorr_after']:.3f} | {t['input_xcorr_bound_99']:.3f} |")
+    if r.get("loop"):
+        lines += ["", "Loop type per recording (from how the voltage follows the angle): "
+                  + ", ".join(f"`{k}` {v}" for k, v in r["loop"].items()) + "."]
+    figures = list(figures) + [f for f in r.get("shape_figures", []) if f not in figures]
     lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
     lines += ["", f"The calibrated plant (with the effects that act on the plate) is `{r['calibrated_plant']}`: "
               "`gym.make(\"ETB-3B-v0\", plant=...)` loads it. Sensor-side effects are in `report.json` (`sensor`).", ""]

@@ -173,9 +173,12 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
 
         sig0 = _significant_residual(data, res0)
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
+        shaped = None
         if sig0:
             final, steps = select(nominal, data, runner, [c for c in opts.candidates if CANDIDATES[c].fit],
                                   significant, opts.max_effects, bar, log, skipped)
+            from .shapes import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
+            final, steps, shaped = refine(nominal, final, steps, data, significant, log=log)
         else:
             final, steps = nominal, []
     finally:
@@ -190,6 +193,8 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
     from .model import LOOP_Z
     result.report["loop"] = {rd.rec.name: "closed" if rd.closed_loop_evidence > LOOP_Z else "open"
                              for rd in data.recs}
+    if shaped is not None:
+        shaped.attach(result, out)
     if out is not None:
         from .report import write
         write(result, Path(out))

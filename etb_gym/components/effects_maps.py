@@ -1,0 +1,330 @@
+"""Nonparametric effects: lookup tables learned from the data (docs/diagnosis-shapes.md).
+
+Each map is an ordinary plant component (kind ``effect.<id>``, loadable from and written to plant files)
+whose shape is a table on a knot grid, interpolated piecewise-linearly and held constant beyond the
+first and last knot:
+
+    angle_torque_map         T = f(phi)                                       (airflow, cogging, any torque over angle)
+    torque_constant_map      k(phi) = c_M + dk(phi): torque dk(phi) i, back-EMF dk(phi) omega   (shaft flux loss)
+    angle_friction_map       T = -g(phi) w,   dw/dt = (omega - |omega| w) / delta   (friction level over angle)
+    speed_friction_map       T = -g(omega) w  (the same unit bristle; g over |omega|, one table per direction:
+                             in steady sliding T = -g(omega) sign(omega), a friction curve over speed)
+    current_voltage_map      drop u(i) in the coil loop (supply, bridge, contact losses of any shape)
+    sensor_map               y = phi + d(phi): a reading error over angle (sensor side, not in the ODE)
+
+w is a unit bristle (the presliding state of ``angle_dependent_friction``), so a map value may be negative
+(less friction than the nominal level) without making the state equation singular.
+
+Grids: angles in rad (the plant's own stroke), speeds in rad/s (>= 0, first knot 0), currents in A
+(signed). Values carry their unit in the field name. The kernels use a binary search, O(log n) per
+evaluation, and no allocation: cheap in the compiled stepper.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..jit import kernel
+from .base import Params, check, positive
+from .effects_electrical import Effect
+from .friction import bristle_advance
+
+
+# ------------------------------------------------------------------------------------ table helpers
+@kernel
+def table_lookup(x, q, off, n, voff):
+    """Piecewise-linear interpolation: knots q[off:off+n] (increasing), values q[voff:voff+n], clamped."""
+    if x <= q[off]:
+        return q[voff]
+    if x >= q[off + n - 1]:
+        return q[voff + n - 1]
+    lo = 0
+    hi = n - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if q[off + mid] <= x:
+            lo = mid
+        else:
+            hi = mid
+    x0 = q[off + lo]
+    f = (x - x0) / (q[off + lo + 1] - x0)
+    return (1.0 - f) * q[voff + lo] + f * q[voff + lo + 1]
+
+
+def _shown(v):
+    """A value as the error message shows it: plain floats, no numpy reprs."""
+    try:
+        return [float(x) for x in np.ravel(np.asarray(v, float))]
+    except (TypeError, ValueError):
+        return v
+
+
+def _as_grid(owner: str, field: str, v, min_size: int = 2, lower=None) -> tuple:
+    try:
+        a = np.asarray(v, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}.{field} = {v!r} is invalid: expected a list of numbers") from None
+    v = _shown(v)
+    check(owner, field, v, a.ndim == 1 and a.size >= min_size, f"a list of at least {min_size} numbers")
+    check(owner, field, v, bool(np.all(np.isfinite(a))), "finite numbers")
+    check(owner, field, v, bool(np.all(np.diff(a) > 0)), "strictly increasing knots")
+    if lower is not None:
+        check(owner, field, v, a[0] >= lower, f"knots >= {lower}")
+    return tuple(float(x) for x in a)
+
+
+def _as_values(owner: str, field: str, v, n: int, grid_field: str) -> tuple:
+    try:
+        a = np.asarray(v, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}.{field} = {v!r} is invalid: expected a list of numbers") from None
+    check(owner, field, f"a list of {a.size} values", a.ndim == 1 and a.size == n,
+          f"one value per knot of {grid_field} ({n})")
+    bad = np.flatnonzero(~np.isfinite(a))
+    if bad.size:
+        raise ValueError(f"{owner}.{field}[{bad[0]}] = {float(a[bad[0]])!r} is invalid: expected a finite number")
+    return tuple(float(x) for x in a)
+
+
+@dataclasses.dataclass(frozen=True)
+class _MapParams(Params):
+    """A grid field and one or more value fields of the same length (set by subclasses)."""
+
+    def _normalize(self, grid: str, values: tuple, lower=None):
+        owner = type(self).__name__
+        g = _as_grid(owner, grid, getattr(self, grid), lower=lower)
+        object.__setattr__(self, grid, g)
+        for f in values:
+            object.__setattr__(self, f, _as_values(owner, f, getattr(self, f), len(g), grid))
+
+    def __hash__(self):
+        return hash(tuple(getattr(self, f.name) for f in dataclasses.fields(self)))
+
+
+class _MapEffect(Effect):
+    """Packs [n, grid..., values..., extra scalars...] for the kernel."""
+
+    grid_field = ""
+    value_fields: tuple = ()
+    scalar_fields: tuple = ()
+
+    def param_vector(self):
+        q = self.params
+        g = np.asarray(getattr(q, self.grid_field))
+        parts = [[float(g.size)], g] + [np.asarray(getattr(q, f)) for f in self.value_fields]
+        parts.append([float(getattr(q, f)) for f in self.scalar_fields])
+        return np.concatenate(parts)
+
+    def evaluate(self, x, field: str | None = None) -> np.ndarray:
+        """The table (``field``, default the first value field) interpolated at ``x`` (numpy, vectorized)."""
+        q = self.params
+        g = np.asarray(getattr(q, self.grid_field))
+        v = np.asarray(getattr(q, field or self.value_fields[0]))
+        return np.interp(np.asarray(x, float), g, v)
+
+
+# ------------------------------------------------------------------------------------ torque over angle
+@dataclasses.dataclass(frozen=True)
+class AngleTorqueMapParams(_MapParams):
+    angle_rad: tuple = (0.0, math.radians(90.0))     # knots over the plant's stroke
+    torque_Nm: tuple = (0.0, 0.0)                    # opening positive
+
+    def validate(self):
+        self._normalize("angle_rad", ("torque_Nm",))
+
+
+@kernel
+def angle_torque_map_kernel(t, phi, omega, i, u, s, p, ds):
+    n = int(p[0])
+    return table_lookup(phi, p, 1, n, 1 + n), 0.0, 0.0
+
+
+class AngleTorqueMap(_MapEffect):
+    kind = "effect.angle_torque_map"
+    effect_id = "angle_torque_map"
+    Params = AngleTorqueMapParams
+    grid_field = "angle_rad"
+    value_fields = ("torque_Nm",)
+    kernel = staticmethod(angle_torque_map_kernel)
+    description = "torque over plate angle, a table learned from the data"
+
+
+# ------------------------------------------------------------------------------------ torque constant over angle
+@dataclasses.dataclass(frozen=True)
+class TorqueConstantMapParams(_MapParams):
+    angle_rad: tuple = (0.0, math.radians(90.0))
+    delta_Nm_per_A: tuple = (0.0, 0.0)               # dk(phi): true torque constant minus the model's
+
+    def validate(self):
+        self._normalize("angle_rad", ("delta_Nm_per_A",))
+
+
+@kernel
+def torque_constant_map_kernel(t, phi, omega, i, u, s, p, ds):
+    n = int(p[0])
+    dk = table_lookup(phi, p, 1, n, 1 + n)
+    return dk * i, dk * omega, 0.0
+
+
+class TorqueConstantMap(_MapEffect):
+    kind = "effect.torque_constant_map"
+    effect_id = "torque_constant_map"
+    Params = TorqueConstantMapParams
+    grid_field = "angle_rad"
+    value_fields = ("delta_Nm_per_A",)
+    kernel = staticmethod(torque_constant_map_kernel)
+    description = "torque / back-EMF constant over plate angle, a table learned from the data"
+
+
+# ------------------------------------------------------------------------------------ friction over angle
+@dataclasses.dataclass(frozen=True)
+class AngleFrictionMapParams(_MapParams):
+    angle_rad: tuple = (0.0, math.radians(90.0))
+    level_Nm: tuple = (0.0, 0.0)                     # g(phi): extra Coulomb level (may be negative)
+    presliding_rad: float = 2e-3                     # delta of the unit bristle
+
+    def validate(self):
+        self._normalize("angle_rad", ("level_Nm",))
+        positive("AngleFrictionMapParams", self, "presliding_rad")
+
+
+@kernel
+def angle_friction_map_kernel(t, phi, omega, i, u, s, p, ds):
+    n = int(p[0])
+    delta = p[1 + 2 * n]
+    ds[0] = omega - abs(omega) * s[0] / delta
+    return -table_lookup(phi, p, 1, n, 1 + n) * s[0] / delta, 0.0, 0.0
+
+
+@kernel
+def unit_bristle_advance(h, t, phi, omega, i, u, s, p):
+    # the presliding distance is the last parameter of every unit-bristle map
+    s[0] = bristle_advance(s[0], omega, h, 1.0, p[p.size - 1])
+
+
+class AngleFrictionMap(_MapEffect):
+    kind = "effect.angle_friction_map"
+    effect_id = "angle_friction_map"
+    Params = AngleFrictionMapParams
+    grid_field = "angle_rad"
+    value_fields = ("level_Nm",)
+    scalar_fields = ("presliding_rad",)
+    state_names = ("z_rad",)
+    state_units = ("rad",)
+    kernel = staticmethod(angle_friction_map_kernel)
+    advance = staticmethod(unit_bristle_advance)
+    description = "friction level over plate angle, a table learned from the data"
+
+
+# ------------------------------------------------------------------------------------ friction over speed
+@dataclasses.dataclass(frozen=True)
+class SpeedFrictionMapParams(_MapParams):
+    speed_rad_s: tuple = (0.0, 1.0)                  # knots over |omega|, first 0
+    opening_Nm: tuple = (0.0, 0.0)                   # g(|omega|) while opening (omega >= 0)
+    closing_Nm: tuple = (0.0, 0.0)                   # g(|omega|) while closing
+    presliding_rad: float = 2e-3
+
+    def validate(self):
+        self._normalize("speed_rad_s", ("opening_Nm", "closing_Nm"), lower=0.0)
+        positive("SpeedFrictionMapParams", self, "presliding_rad")
+
+
+@kernel
+def speed_friction_map_kernel(t, phi, omega, i, u, s, p, ds):
+    n = int(p[0])
+    delta = p[1 + 3 * n]
+    a = abs(omega)
+    if omega >= 0.0:
+        g = table_lookup(a, p, 1, n, 1 + n)
+    else:
+        g = table_lookup(a, p, 1, n, 1 + 2 * n)
+    ds[0] = omega - a * s[0] / delta
+    return -g * s[0] / delta, 0.0, 0.0
+
+
+class SpeedFrictionMap(_MapEffect):
+    kind = "effect.speed_friction_map"
+    effect_id = "speed_friction_map"
+    Params = SpeedFrictionMapParams
+    grid_field = "speed_rad_s"
+    value_fields = ("opening_Nm", "closing_Nm")
+    scalar_fields = ("presliding_rad",)
+    state_names = ("z_rad",)
+    state_units = ("rad",)
+    kernel = staticmethod(speed_friction_map_kernel)
+    advance = staticmethod(unit_bristle_advance)
+    description = "friction level over speed and direction, a table learned from the data"
+
+    def friction_curve(self, omega) -> np.ndarray:
+        """Steady sliding torque -g(omega) sign(omega) [N m] at the speeds ``omega`` [rad/s]."""
+        w = np.asarray(omega, float)
+        up = self.evaluate(np.abs(w), "opening_Nm")
+        dn = self.evaluate(np.abs(w), "closing_Nm")
+        return -np.where(w >= 0, up, dn) * np.sign(w)
+
+
+# ------------------------------------------------------------------------------------ voltage over current
+@dataclasses.dataclass(frozen=True)
+class CurrentVoltageMapParams(_MapParams):
+    current_A: tuple = (-1.0, 1.0)                   # signed knots
+    drop_V: tuple = (0.0, 0.0)                       # extra voltage drop in the coil loop
+
+    def validate(self):
+        self._normalize("current_A", ("drop_V",))
+
+
+@kernel
+def current_voltage_map_kernel(t, phi, omega, i, u, s, p, ds):
+    n = int(p[0])
+    return 0.0, table_lookup(i, p, 1, n, 1 + n), 0.0
+
+
+class CurrentVoltageMap(_MapEffect):
+    kind = "effect.current_voltage_map"
+    effect_id = "current_voltage_map"
+    Params = CurrentVoltageMapParams
+    grid_field = "current_A"
+    value_fields = ("drop_V",)
+    kernel = staticmethod(current_voltage_map_kernel)
+    description = "voltage drop over current, a table learned from the data"
+
+
+# ------------------------------------------------------------------------------------ sensor over angle
+@dataclasses.dataclass(frozen=True)
+class SensorMapParams(_MapParams):
+    angle_rad: tuple = (0.0, math.radians(90.0))
+    error_rad: tuple = (0.0, 0.0)                    # d(phi): reading minus true angle
+
+    def validate(self):
+        self._normalize("angle_rad", ("error_rad",))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SensorMap:
+    """A reading error over angle, y = phi + d(phi) (sensor side: applied to the simulated angle, not
+    part of the ODE). ``apply`` and ``invert`` work in degrees like ``diagnose.measurement.SensorModel``."""
+
+    params: SensorMapParams = SensorMapParams()
+    kind = "sensor.map"
+
+    def apply_deg(self, phi_deg):
+        q = self.params
+        phi = np.radians(np.asarray(phi_deg, float))
+        return np.degrees(phi + np.interp(phi, q.angle_rad, q.error_rad))
+
+    def invert_deg(self, y_deg):
+        """The angle whose reading is ``y_deg`` (fixed-point iteration; d is small and smooth)."""
+        y = np.asarray(y_deg, float)
+        phi = y.copy()
+        for _ in range(6):
+            phi = y - (self.apply_deg(phi) - phi)
+        return phi
+
+    def to_dict(self):
+        return {"kind": self.kind, "params": self.params.to_dict()}
+
+
+MAP_EFFECTS = {c.effect_id: c for c in (AngleTorqueMap, TorqueConstantMap, AngleFrictionMap, SpeedFrictionMap,
+                                        CurrentVoltageMap)}

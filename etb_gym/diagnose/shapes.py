@@ -1,0 +1,637 @@
+"""Shapes from the data: a named family's formula refined by a regularized lookup table (docs/diagnosis-shapes.md).
+
+A *map term* is a table component of ``etb_gym.components.effects_maps`` on a knot grid taken from the plant
+and the data (the angle knots span the plant's own stops, the speed and current knots the range the
+recordings visit). Its knot values are the fitted coefficients c, found by output error together with the
+calibrated nominal parameters (the model's other parameters stay at their fitted values):
+
+    minimize  |r(x)|^2 + lambda |D c|^2        r: the diagnosis's normalized residual (fit.make_fun)
+                                               D: second differences of the knot values (roughness)
+
+by Gauss-Newton on a finite-difference Jacobian (the table is linear in c, so two or three iterations
+suffice). The roughness weight lambda is chosen by cross-validation over the diagnosis's two folds of
+alternating 0.5 s time blocks: for each lambda on a log grid the linearized problem is solved on one fold
+and the angle residual predicted on the other (``fit.fold_masks`` layout). The *held-out error* of a model
+(formula or map) is measured the same way for both, but with the true simulation on the held-out fold:
+every free parameter refitted on one fold by one regularized Gauss-Newton step from the full-data optimum,
+the other fold's angle residual simulated, summed over both folds (:func:`heldout_error`).
+
+A refined map is kept (in the twin and the exported plant file, where it sits beside the family's formula
+as a correction) only when its held-out error is lower than the formula's by MIN_GAIN.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+
+import numpy as np
+
+from ..components import effects_maps as mx
+from . import fit as F
+from .candidates import Candidate, FitParam
+from .model import Data, Spec, _layout, residuals, simulate
+
+MIN_GAIN = 0.05          # a map replaces the formula only if the held-out error falls by at least this fraction
+LAMBDAS = tuple(10.0 ** np.arange(-3.0, 3.5, 0.5))   # roughness weights (relative, see _penalty_scale)
+GN_ITER = 3
+FD_STEP = 0.5            # finite-difference step in normalized units (a knot value moves by FD_STEP * scale)
+ANGLE_KNOTS = 16         # knots of a refined angle map over the stroke
+JAC_SUBSTEPS = 20       # Jacobians at this integrator step (the residual at the model's own)
+RIDGE = 1e-4             # a small pull of the table towards zero (unvisited knots, collinearity with the spring)
+
+
+# ------------------------------------------------------------------------------------ map terms
+@dataclasses.dataclass
+class MapTerm:
+    """One table: its component class, grid and value fields; coefficients are the knot values."""
+
+    id: str                       # candidate id inside the Spec (e.g. "airflow_torque_map")
+    family: str
+    cls: type
+    grid: np.ndarray
+    value_fields: tuple
+    scale: float                  # typical knot value (normalization of the coefficients)
+    unit: str
+    fixed: tuple = ()             # other fields of the component ((name, value), ...)
+
+    @property
+    def n_coef(self) -> int:
+        return self.grid.size * len(self.value_fields)
+
+    def roughness(self) -> np.ndarray:
+        """Second differences of the knot values, per value field, in normalized coefficients."""
+        n = self.grid.size
+        if n < 3:
+            return np.zeros((0, self.n_coef))
+        h = np.diff(self.grid)
+        rows = []
+        for f in range(len(self.value_fields)):
+            for k in range(1, n - 1):
+                r = np.zeros(self.n_coef)
+                # divided second difference on a possibly non-uniform grid, scaled to a uniform grid's
+                a, b = h[k - 1], h[k]
+                m = 0.5 * (a + b)
+                r[f * n + k - 1] = m / a
+                r[f * n + k] = -m / a - m / b
+                r[f * n + k + 1] = m / b
+                rows.append(r)
+        return np.array(rows)
+
+    def candidate(self) -> Candidate:
+        fit = tuple(FitParam(f"c{k}", 0.0, -1e3 * self.scale, 1e3 * self.scale, self.scale, self.unit)
+                    for k in range(self.n_coef))
+        return Candidate(self.id, self.family, self.cls.description, fit, component=_Factory(self))
+
+    def component(self, coef) -> mx.Effect:
+        return _Factory(self).make(np.asarray(coef, float))
+
+
+class _Factory:
+    """Stands in for an effect class inside a Candidate: ``Params(c0=..., c1=...)`` -> the table's params."""
+
+    def __init__(self, term: MapTerm):
+        self.term = term
+
+    def make(self, coef):
+        t = self.term
+        n = t.grid.size
+        kw = {t.cls.grid_field: tuple(t.grid)}
+        for j, f in enumerate(t.value_fields):
+            kw[f] = tuple(coef[j * n:(j + 1) * n])
+        kw.update(dict(t.fixed))
+        comp = t.cls(t.cls.Params(**kw))
+        comp.name = t.id                     # unique in the plant (two tables of one kind may coexist)
+        return comp
+
+    def Params(self, **kw):
+        return np.array([kw[f"c{k}"] for k in range(self.term.n_coef)])
+
+    def __call__(self, coef):
+        return self.make(coef)
+
+
+def data_angles_rad(data: Data) -> np.ndarray:
+    return np.radians(np.concatenate([rd.rec.angle_deg for rd in data.recs]))
+
+
+def data_speeds_rad_s(data: Data) -> np.ndarray:
+    from .measurement import smooth
+    return np.concatenate([np.gradient(np.radians(smooth(rd.rec.angle_deg, 15)), rd.rec.dt_s) for rd in data.recs])
+
+
+def angle_grid(base, data: Data, n: int) -> np.ndarray:
+    """n knots over the plant's stroke (its stops; the visited range if the plant has none)."""
+    phi = data_angles_rad(data)
+    lo = base.angle_min_rad if math.isfinite(base.angle_min_rad) else float(np.min(phi))
+    hi = base.angle_max_rad if math.isfinite(base.angle_max_rad) else float(np.max(phi))
+    return np.linspace(lo, hi, n)
+
+
+def speed_grid(data: Data, n: int = 7) -> np.ndarray:
+    """0 and n-1 knots spaced logarithmically up to the fastest speed the recordings reach."""
+    w = np.abs(data_speeds_rad_s(data))
+    top = max(float(np.quantile(w, 0.995)), 0.5)
+    return np.concatenate([[0.0], np.geomspace(top / 300.0, top, n - 1)])
+
+
+def current_grid(data: Data, base, n: int = 9) -> np.ndarray:
+    """n signed knots over the currents the recordings reach (measured, else the supply over R)."""
+    cur = [rd.rec.current_A for rd in data.recs if rd.rec.current_A is not None]
+    if cur:
+        c = np.concatenate(cur)
+        lo, hi = float(np.quantile(c, 0.002)), float(np.quantile(c, 0.998))
+    else:
+        R = float(getattr(base.drive.params, "resistance_ohm", 1.0))
+        v = max(float(np.max(np.abs(rd.rec.voltage_V))) for rd in data.recs)
+        lo, hi = -v / R, v / R
+    top = max(abs(lo), abs(hi), 0.1)
+    lo = min(lo, -0.05 * top)
+    hi = max(hi, 0.05 * top)
+    g = np.unique(np.concatenate([np.linspace(lo, 0.0, (n + 1) // 2), np.linspace(0.0, hi, (n + 1) // 2)]))
+    return g
+
+
+# which table refines which family's formula
+def family_term(cid: str, base, data: Data) -> MapTerm | None:
+    """The map that refines candidate ``cid`` (None: the family has no table form here)."""
+    if cid in ("airflow_torque", "spring_asymmetry"):
+        return MapTerm(f"{cid}_map", "mechanical", mx.AngleTorqueMap, angle_grid(base, data, ANGLE_KNOTS),
+                       ("torque_Nm",), 0.005, "N m")
+    if cid in ("shaft_flux_loss", "torque_constant_error"):
+        return MapTerm(f"{cid}_map", "magnetic", mx.TorqueConstantMap, angle_grid(base, data, ANGLE_KNOTS // 2 + 1),
+                       ("delta_Nm_per_A",), 0.002, "N m/A")
+    if cid == "angle_dependent_friction":
+        return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, ANGLE_KNOTS // 2 + 1),
+                       ("level_Nm",), 0.005, "N m", (("presliding_rad", 2e-3),))
+    if cid == "stribeck_friction":
+        return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7),
+                       ("opening_Nm", "closing_Nm"), 0.005, "N m", (("presliding_rad", 2e-3),))
+    if cid == "supply_drop":
+        return MapTerm(f"{cid}_map", "electrical", mx.CurrentVoltageMap, current_grid(data, base, 9),
+                       ("drop_V",), 0.02, "V")
+    return None
+
+
+# ------------------------------------------------------------------------------------ penalized Gauss-Newton
+@dataclasses.dataclass
+class Problem:
+    """A model (spec), the normalized parameters x, which of them are free, and the roughness rows of each
+    table (one roughness weight per table)."""
+
+    spec: Spec
+    x: np.ndarray
+    free: np.ndarray                      # indices into x
+    groups: list                          # per table: (D rows over the free parameters, ridge mask over them)
+
+    @classmethod
+    def make(cls, spec: Spec, x, free_ids, terms=()) -> "Problem":
+        """Free parameters: those whose owner is in ``free_ids`` ("nominal" and candidate ids)."""
+        free = np.array([k for k, (o, _) in enumerate(spec.params) if o in free_ids], int)
+        pos = {int(k): j for j, k in enumerate(free)}
+        groups = []
+        for t in terms:
+            idx = [k for k, (o, _) in enumerate(spec.params) if o == t.id]
+            R = t.roughness()
+            D = np.zeros((R.shape[0], free.size))
+            ridge = np.zeros(free.size)
+            for j, k in enumerate(idx):
+                D[:, pos[k]] = R[:, j]
+                ridge[pos[k]] = 1.0
+            groups.append((D, ridge))
+        return cls(spec, np.asarray(x, float), free, groups)
+
+    def penalty(self, lams) -> np.ndarray:
+        """The penalty's matrix sum_g lambda_g (D_g^T D_g + RIDGE diag(table_g)) over the free parameters."""
+        P = np.zeros((self.free.size, self.free.size))
+        for lam, (D, ridge) in zip(lams, self.groups):
+            P += lam * (D.T @ D + RIDGE * np.diag(ridge))
+        return P
+
+
+def _row_info(data: Data):
+    """Per residual element (fit.residuals layout, current included): fold (0/1) and whether it is an angle."""
+    fold, is_angle = [], []
+    for k, rd, m, kind in _layout(data, None, True):
+        t = rd.rec.t_s
+        fold.append((np.floor((t - t[0]) / F.FOLD_BLOCK_S).astype(int) % 2))
+        is_angle.append(np.full(t.size, kind == "angle"))
+    return np.concatenate(fold), np.concatenate(is_angle)
+
+
+def _residual(spec, data, x):
+    """The normalized residual (fit.make_fun's, current included); FAIL everywhere if the simulation fails."""
+    try:
+        plant, sensor = spec.build(np.asarray(x, float))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            pred = simulate(plant, sensor, data)
+    except (ValueError, FloatingPointError):
+        pred = None
+    if pred is None:
+        return np.full(_row_info(data)[0].size, F.FAIL)
+    r = residuals(pred, data)
+    r[~np.isfinite(r)] = F.FAIL
+    return r
+
+
+def jacobian(pb: Problem, data: Data, r0: np.ndarray, step: float = FD_STEP) -> np.ndarray:
+    """Forward differences of the residual over the free parameters (one simulation each)."""
+    J = np.empty((r0.size, pb.free.size))
+    lo, hi = pb.spec.bounds()
+    for j, k in enumerate(pb.free):
+        x = pb.x.copy()
+        h = step if x[k] + step <= hi[k] else -step
+        x[k] += h
+        J[:, j] = (_residual(pb.spec, data, x) - r0) / h
+    return J
+
+
+def _penalty_scales(J: np.ndarray, pb: Problem) -> list:
+    """Per table: mean squared Jacobian column over mean squared roughness column, so that a relative
+    weight of 1 balances the data and the roughness whatever the table's units."""
+    out = []
+    for D, ridge in pb.groups:
+        m = ridge > 0
+        jj = float(np.mean(np.sum(J[:, m] ** 2, axis=0))) if m.any() else 1.0
+        dd = float(np.mean(np.sum(D[:, m] ** 2, axis=0))) if m.any() and D.size else 1.0
+        out.append(max(jj, 1e-12) / max(dd, 1e-12))
+    return out
+
+
+def _gram(J, r, rows=None):
+    """(J^T J, J^T r, r^T r) over the residual rows ``rows`` (all if None)."""
+    if rows is not None:
+        J, r = J[rows], r[rows]
+    return J.T @ J, J.T @ r, float(r @ r)
+
+
+def _solve_gram(A, g, pb: Problem, lams, theta=None, damping: float = 0.0):
+    """Regularized (Levenberg-damped) Gauss-Newton step from the normal equations of some residual rows."""
+    theta = pb.x[pb.free] if theta is None else theta
+    s = max(float(np.mean(np.diag(A))), 1e-12)
+    P = pb.penalty(lams)
+    A2 = A + P + damping * np.diag(np.diag(A)) + 1e-9 * s * np.eye(A.shape[0])
+    try:
+        return np.linalg.solve(A2, -(g + P @ theta))
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(A2, -(g + P @ theta), rcond=None)[0]
+
+
+def _solve(J, r, pb: Problem, lams, rows=None, theta=None, damping: float = 0.0):
+    """Regularized Gauss-Newton step over the free parameters, using residual rows ``rows`` (all if None)."""
+    A, g, _ = _gram(J, r, rows)
+    return _solve_gram(A, g, pb, lams, theta, damping)
+
+
+def _clip(pb: Problem, x):
+    lo, hi = pb.spec.bounds()
+    return np.clip(x, lo + 1e-9, hi - 1e-9)
+
+
+def _objective(pb: Problem, r: np.ndarray, theta: np.ndarray, lams) -> float:
+    return float(r @ r) + float(theta @ pb.penalty(lams) @ theta)
+
+
+class _Folds:
+    """Normal equations of each fold (fit) and of the other fold's angle rows (score), computed once."""
+
+    def __init__(self, J, r, data: Data):
+        fold, is_angle = _row_info(data)
+        self.fit = [_gram(J, r, fold == f)[:2] for f in (0, 1)]
+        self.test = [_gram(J, r, (fold != f) & is_angle) for f in (0, 1)]
+
+    def score(self, pb: Problem, lams) -> float:
+        """Predicted held-out sum of squares |r_B + J_B d_A|^2 + |r_A + J_A d_B|^2 (linearized)."""
+        tot = 0.0
+        for (A, g), (At, gt, ct) in zip(self.fit, self.test):
+            d = _solve_gram(A, g, pb, lams)
+            tot += ct + 2.0 * float(d @ gt) + float(d @ At @ d)
+        return tot
+
+
+def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2) -> tuple[list, list]:
+    """Roughness weights (relative) by linearized cross-validation over the two time-block folds, angle rows
+    scored: a common weight first, then each table's weight in turn (coordinate search on the grid)."""
+    if not pb.groups:
+        return [], []
+    folds = _Folds(J, r, data)
+    sc = _penalty_scales(J, pb)
+    grid = list(grid)
+    absl = lambda rel: [a * b for a, b in zip(rel, sc)]
+    curve = [folds.score(pb, absl([g] * len(sc))) for g in grid]
+    rel = [grid[int(np.argmin(curve))]] * len(sc)
+    if len(sc) > 1:
+        for _ in range(sweeps):
+            for k in range(len(sc)):
+                best = None
+                for g in grid:
+                    trial = list(rel)
+                    trial[k] = g
+                    v = folds.score(pb, absl(trial))
+                    if best is None or v < best[0]:
+                        best = (v, g)
+                rel[k] = best[1]
+    return rel, curve
+
+
+@dataclasses.dataclass
+class PenalizedFit:
+    fit: F.FitResult
+    lams: list                    # absolute roughness weights per table
+    lams_rel: list                # relative weights (1: data and roughness balanced)
+    jac: np.ndarray               # last Jacobian over the free parameters
+    problem: Problem
+    cv_curve: list
+
+
+def _coarse(spec: Spec, substeps: int) -> Spec:
+    """The same model at a coarser integrator step (for Jacobians only)."""
+    if spec.base.substeps <= substeps:
+        return spec
+    return Spec(spec.base.replace(substeps=substeps), spec.candidates, spec.nominal)
+
+
+def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int = GN_ITER, jac_substeps: int = JAC_SUBSTEPS,
+                  log=None) -> PenalizedFit:
+    """Output-error fit of the free parameters with the roughness penalty; the weights by cross-validation
+    (re-chosen at every Jacobian; the step is damped (Levenberg) if the plain one does not lower the
+    penalized objective). Jacobians are taken at
+    ``jac_substeps`` (the residual itself at the model's own step)."""
+    x = _clip(pb, pb.x.copy())
+    pb = dataclasses.replace(pb, x=x)
+    r = _residual(pb.spec, data, x)
+    lams = rel = None
+    curve = []
+    J = None
+    coarse = dataclasses.replace(pb, spec=_coarse(pb.spec, jac_substeps))
+    for it in range(iters):
+        coarse.x = pb.x
+        J = jacobian(coarse, data, _residual(coarse.spec, data, pb.x))
+        rel, c = choose_lambdas(J, r, pb, data, grid)      # re-chosen at every linearization
+        curve = curve or c
+        lams = [a * b for a, b in zip(rel, _penalty_scales(J, pb))]
+        theta = pb.x[pb.free]
+        obj0 = _objective(pb, r, theta, lams)
+        A, g, _ = _gram(J, r)
+        improved = False
+        for damping, a in ((0.0, 1.0), (0.0, 0.5), (0.1, 1.0), (1.0, 1.0)):
+            d = _solve_gram(A, g, pb, lams, damping=damping)
+            xn = pb.x.copy()
+            xn[pb.free] = theta + a * d
+            xn = _clip(pb, xn)
+            rn = _residual(pb.spec, data, xn)
+            objn = _objective(pb, rn, xn[pb.free], lams)
+            if objn < obj0:
+                improved = True
+                break
+        if not improved:
+            break
+        gain = (obj0 - objn) / max(obj0, 1e-300)
+        pb = dataclasses.replace(pb, x=xn)
+        r = rn
+        if log:
+            log(f"    penalized fit: iteration {it + 1}, objective {obj0:.4g} -> {objn:.4g}")
+        if gain < 0.005:
+            break
+    Jfull = np.zeros((r.size, len(pb.x)))
+    Jfull[:, pb.free] = J
+    fr = F.FitResult(pb.spec, pb.x, float(r @ r), r.size, Jfull, 0, F.integrated_time(r),
+                     F.block_scores(Jfull, r, F.residual_blocks(data, F.BLOCK_S)))
+    return PenalizedFit(fr, lams, rel, J, pb, curve)
+
+
+def heldout_error(pb: Problem, data: Data, lams=(), J=None, jac_substeps: int = JAC_SUBSTEPS) -> float:
+    """Held-out mean square of the normalized angle residual: on each fold the free parameters are refitted
+    by one regularized Gauss-Newton step from ``pb.x`` (Jacobian ``J``, computed if None), the other fold's
+    residual is simulated. Comparable between a formula (no tables) and a map."""
+    r = _residual(pb.spec, data, pb.x)
+    if J is None:
+        coarse = dataclasses.replace(pb, spec=_coarse(pb.spec, jac_substeps))
+        J = jacobian(coarse, data, _residual(coarse.spec, data, pb.x))
+    fold, is_angle = _row_info(data)
+    tot, cnt = 0.0, 0
+    for f in (0, 1):
+        d = _solve(J, r, pb, list(lams) or [0.0] * len(pb.groups), fold == f)
+        x = pb.x.copy()
+        x[pb.free] = x[pb.free] + d
+        x = _clip(pb, x)
+        rn = _residual(pb.spec, data, x)
+        test = (fold != f) & is_angle
+        tot += float(rn[test] @ rn[test])
+        cnt += int(test.sum())
+    return tot / max(cnt, 1)
+
+
+# ------------------------------------------------------------------------------------ refinement of a family
+@dataclasses.dataclass
+class Refinement:
+    family_id: str                # the catalogue candidate whose shape was refined
+    term: MapTerm
+    fit: F.FitResult              # the model with the map (formula kept, map as a correction)
+    lam_rel: float
+    heldout_formula: float
+    heldout_map: float
+    kept: bool
+
+    def table(self) -> dict:
+        """The learned table: grid and values (physical units)."""
+        vals = self.fit.spec.values(self.fit.x)
+        coef = np.array([vals[f"{self.term.id}.c{k}"] for k in range(self.term.n_coef)])
+        comp = self.term.component(coef)
+        d = comp.params.to_dict()
+        return {"component": comp.kind, **{k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}}
+
+
+def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refinement | None:
+    """Refine accepted candidate ``cid`` of ``final`` by its table (None: no table form for the family)."""
+    term = family_term(cid, final.spec.base, data)
+    if term is None:
+        return None
+    spec_m = final.spec.with_candidate(term.candidate())
+    x0 = np.concatenate([final.x, np.zeros(term.n_coef)])
+    pb_formula = Problem.make(final.spec, final.x, ("nominal", cid))
+    h_formula = heldout_error(pb_formula, data)
+    pb = Problem.make(spec_m, x0, ("nominal", term.id), [term])
+    pf = fit_penalized(pb, data, log=None)
+    pb_fit = dataclasses.replace(pb, x=pf.fit.x)
+    h_map = heldout_error(pb_fit, data, pf.lams, pf.jac)
+    kept = h_map < (1.0 - MIN_GAIN) * h_formula
+    log(f"  shape of {cid}: table over {term.cls.grid_field} ({term.grid.size} knots, roughness weight "
+        f"{pf.lams_rel[0]:.2g}): held-out {h_formula:.3g} -> {h_map:.3g} ({'kept' if kept else 'not kept'})")
+    return Refinement(cid, term, pf.fit, pf.lams_rel[0], h_formula, h_map, kept)
+
+
+def plot_table(ax, term: MapTerm, table: dict, title: str):
+    """Draw a learned table on a matplotlib axis (grid in deg, rad/s or A)."""
+    g = np.asarray(table[term.cls.grid_field], float)
+    x = np.degrees(g) if term.cls.grid_field == "angle_rad" else g
+    xl = {"angle_rad": "angle [deg]", "speed_rad_s": "speed |omega| [rad/s]", "current_A": "current [A]"}
+    for f in term.value_fields:
+        ax.plot(x, table[f], marker=".", lw=1.0, label=f)
+    ax.axhline(0.0, color="k", lw=0.5)
+    ax.set_xlabel(xl.get(term.cls.grid_field, term.cls.grid_field))
+    ax.set_ylabel(term.unit)
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7)
+
+
+# ------------------------------------------------------------------------------------ the diagnosis's entry point
+FAMILY_OF_TERM = {"unmodelled_angle": ("airflow_torque", "spring_asymmetry", "angle_dependent_friction"),
+                  "unmodelled_speed": ("stribeck_friction", "angle_dependent_friction"),
+                  "unmodelled_current": ("shaft_flux_loss", "torque_constant_error"),
+                  "unmodelled_voltage": ("supply_drop", "coil_heating", "inductance_saturation")}
+
+
+@dataclasses.dataclass
+class Outcome:
+    """What :func:`refine` did: refined family tables, the generic fit (if run) and whether it replaced
+    the catalogue's explanation (``outside``)."""
+
+    refinements: list = dataclasses.field(default_factory=list)
+    generic: object = None                 # unmodelled.Generic
+    outside: bool = False
+    heldout_catalogue: float | None = None
+    dropped: tuple = ()                    # catalogue ids the generic model displaced
+
+    def entries(self, names, rms_before_deg: float) -> tuple[dict, list]:
+        """(per effect id: the "shape" to add to that effect, entries to put first under "unexplained")."""
+        shapes = {}
+        for ref in self.refinements:
+            if ref.kept:
+                shapes[ref.family_id] = {"table": ref.table(), "roughness_weight": ref.lam_rel,
+                                         "heldout_formula": ref.heldout_formula, "heldout_map": ref.heldout_map,
+                                         "description": f"the shape of {ref.family_id} learned from the data "
+                                                        f"({ref.term.cls.kind} in the plant file, added to the formula)"}
+        unexplained = []
+        if self.outside and self.generic is not None:
+            g = self.generic
+            tables = {k: {"component": c.kind, **{f: list(v) if isinstance(v, tuple) else v
+                                                  for f, v in c.params.to_dict().items()}}
+                      for k, c in g.tables.items()}
+            displaced = (f"; catalogue effects that fitted less well on held-out data: {', '.join(self.dropped)}"
+                         if self.dropped else "")
+            unexplained.append({"id": g.id, "recording": ", ".join(names), "where": "throughout",
+                                "rms_deg": rms_before_deg,
+                                "description": g.shape["summary"] + "; kept in the calibrated plant as tables "
+                                f"(held-out error {g.heldout:.3g} against {self.heldout_catalogue:.3g} for the "
+                                f"catalogue{displaced})",
+                                "outside_catalogue": True, "shape": g.shape, "tables": tables,
+                                "heldout_generic": g.heldout, "heldout_catalogue": self.heldout_catalogue})
+        return shapes, unexplained
+
+    def plot(self, path) -> str | None:
+        """The learned tables on a matplotlib Agg canvas, written to ``path`` (None: nothing to draw)."""
+        panels = [(r.term, r.table(), f"{r.family_id}: shape learned from the data") for r in self.refinements if r.kept]
+        if self.outside and self.generic is not None:
+            g = self.generic
+            for t in g.terms:
+                if t.id in g.shape.get("significant_terms", []) or t.id == "unmodelled_angle":
+                    c = g.tables[t.id]
+                    tab = {k: list(v) if isinstance(v, tuple) else v for k, v in c.params.to_dict().items()}
+                    panels.append((t, tab, f"outside the catalogue ({g.id}): {t.cls.description}"))
+        if not panels:
+            return None
+        from pathlib import Path
+
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+        fig = Figure(figsize=(7, 2.6 * len(panels)))
+        FigureCanvasAgg(fig)
+        for k, (t, tab, title) in enumerate(panels):
+            plot_table(fig.add_subplot(len(panels), 1, k + 1), t, tab, title)
+        fig.tight_layout()
+        from ..io import write_atomic
+
+        path = write_atomic(Path(path), lambda fh: fig.savefig(fh, dpi=100, format="png"))
+        return path.name
+
+    def attach(self, result, out=None) -> None:
+        """Add the shapes and the outside-the-catalogue entry to ``result.report`` (and the plot to ``out``)."""
+        rep = result.report
+        shapes, unexplained = self.entries(rep["recordings"], rep["rms_before_deg"])
+        for e in rep["effects"]:
+            if e["id"] in shapes:
+                e["shape"] = shapes[e["id"]]
+        rep["unexplained"] = unexplained + list(rep["unexplained"])
+        if self.outside:
+            rep["outside_catalogue"] = unexplained[0]["id"] if unexplained else None
+        if out is not None:
+            name = self.plot(Path_(out) / "shapes.png")
+            if name:
+                rep["shape_figures"] = [name]
+
+
+def Path_(p):
+    from pathlib import Path
+    return Path(p)
+
+
+def _heldout_catalogue(nominal: F.FitResult, cur: F.FitResult, steps, refinements, data: Data) -> float:
+    kept = [r for r in refinements if r.kept]
+    if kept:
+        return kept[-1].heldout_map
+    if refinements:
+        return refinements[-1].heldout_formula
+    ids = ("nominal",) + tuple(c.id for c in cur.spec.candidates)
+    return heldout_error(Problem.make(cur.spec, cur.x, ids), data)
+
+
+def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, significant, log=print,
+           outside: bool = True):
+    """After the greedy selection: refine each accepted family's shape by its table (kept when the held-out
+    error falls by MIN_GAIN), then, if a significant residual remains (or nothing was accepted, or a learned
+    angle table looks periodic), fit the generic tables of :mod:`.unmodelled` and let them replace the
+    catalogue's explanation when they predict held-out data better. Returns (final fit, steps, Outcome)."""
+    from . import unmodelled as U
+    res = Outcome()
+    cur = final
+    done = False
+    if len(steps) > 1:
+        # later effects may only have patched the first formula's wrong shape: the first effect with its
+        # table replaces them all when it predicts held-out data as well as all of them
+        first = refine_family(steps[0].fit, steps[0].id, data, log)
+        if first is not None and first.kept:
+            ids = ("nominal",) + tuple(c.id for c in final.spec.candidates)
+            h_all = heldout_error(Problem.make(final.spec, final.x, ids), data)
+            if first.heldout_map <= (1.0 + MIN_GAIN) * h_all:
+                log(f"  {steps[0].id} with its table (held-out {first.heldout_map:.3g}) does as well as all "
+                    f"{len(steps)} effects ({h_all:.3g}): {', '.join(st.id for st in steps[1:])} dropped")
+                res.refinements = [first]
+                cur, steps, done = first.fit, steps[:1], True
+    for st in ([] if done else steps):
+        ref = refine_family(cur, st.id, data, log)
+        if ref is None:
+            continue
+        res.refinements.append(ref)
+        if ref.kept:
+            cur = ref.fit
+    if not outside:
+        return cur, steps, res
+    periodic = False
+    for ref in res.refinements:
+        if ref.kept and ref.term.cls is mx.AngleTorqueMap:
+            tab = ref.table()
+            periodic |= U.periodicity(np.degrees(tab["angle_rad"]), np.asarray(tab["torque_Nm"]))["periodic"]
+    if steps and not periodic and not significant(cur):
+        return cur, steps, res
+    res.heldout_catalogue = h_cat = _heldout_catalogue(nominal, cur, steps, res.refinements, data)
+    g = U.fit_generic(nominal, data, log=log)
+    res.generic = g
+    rms_nom = U._rms_deg(nominal.spec, nominal.x, data)
+    if U.compare(g, h_cat, rms_nom, data):
+        named = {st.id for st in steps}
+        dom = g.shape.get("significant_terms", [])
+        same = (dom and not g.shape.get("angle", {}).get("periodic", False)
+                and named & set(FAMILY_OF_TERM.get(dom[0], ())))
+        if same:
+            log(f"  the generic tables fit better, but their main term ({dom[0]}) is what {sorted(named)} "
+                "describes: the catalogue's name is kept")
+            return cur, steps, res
+        res.outside = True
+        res.dropped = tuple(st.id for st in steps)
+        log(f"  outside the catalogue ({g.id}): held-out {g.heldout:.3g} against {h_cat:.3g} for the catalogue model"
+            + (f"; {', '.join(res.dropped)} not given as the explanation" if res.dropped else ""))
+        return g.fit, [], res
+    log(f"  generic tables: held-out {g.heldout:.3g} against {h_cat:.3g} for the catalogue model: not needed")
+    return cur, steps, res

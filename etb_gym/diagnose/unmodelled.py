@@ -1,0 +1,248 @@
+"""Physics outside the catalogue: the missing torque (or voltage) as a function of the state (docs/diagnosis-shapes.md).
+
+When the candidates leave a significant residual, the calibrated nominal model is extended by a generic set of
+regularized tables (``etb_gym.components.effects_maps``) and fitted by output error (shapes.fit_penalized,
+roughness weights per table by cross-validation over the time-block folds):
+
+    T(phi)         torque over angle, fine knots over the plant's stroke (resolves a periodic detent torque)
+    g(omega)       friction level over speed, per direction (a unit bristle: -g(omega) sign(omega) in sliding)
+    dk(phi) i      a torque proportional to current (and its back-EMF), over angle
+    u(i)           a voltage drop over current in the coil loop
+
+The fitted tables are then described: which of them matters (the recording's RMS residual when that table is
+removed again), whether T(phi) is periodic in angle (a periodogram with harmonics over trial periods, on the
+angles the recordings visit: period, amplitude, waveform), how the friction depends on speed and direction,
+how strongly the torque follows current. The description, the tables and a plot go to the report under the
+ids ``unmodelled_torque`` / ``unmodelled_voltage`` with the words "outside the catalogue".
+
+Decision (:func:`compare`): the generic model replaces the catalogue's explanation when its held-out error
+(shapes.heldout_error, same folds and refit rule as the catalogue model's) is lower by GAIN_OUT, or when its
+angle table is periodic (no catalogue family acts periodically in angle) and at least as good; then no catalogue
+effect is reported as the explanation.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..components import effects_maps as mx
+from . import fit as F
+from .model import Data, Spec, angle_residuals_deg, simulate
+from .shapes import MapTerm, Problem, angle_grid, current_grid, fit_penalized, heldout_error, speed_grid
+
+GAIN_OUT = 0.10          # held-out error the generic model must win over the catalogue's
+RMS_GAIN = 0.10          # ... and over the nominal model, as the catalogue effects must (explain.RMS_MIN_GAIN)
+ANGLE_KNOTS = 73         # 1.25 deg over a 90 deg stroke
+PERIODS_DEG = (6.0, 60.0)  # trial periods of the periodogram
+PERIODIC_R2 = 0.6        # share of the detrended table the periodic fit must explain
+MIN_CYCLES = 2.5         # ... over at least this many periods of the visited range
+HARMONICS = 3
+GN_ITER = 6              # Gauss-Newton iterations of the generic fit (stops earlier when the gain is < 0.5 %)
+IMPORTANCE_SHARE = 0.3  # a table matters if removing it costs this share of what the dominant one costs
+
+
+def generic_terms(base, data: Data, voltage: bool = True) -> list[MapTerm]:
+    g = angle_grid(base, data, ANGLE_KNOTS)
+    terms = [MapTerm("unmodelled_angle", "unmodelled", mx.AngleTorqueMap, g, ("torque_Nm",), 0.005, "N m"),
+             MapTerm("unmodelled_speed", "unmodelled", mx.SpeedFrictionMap, speed_grid(data, 6),
+                     ("opening_Nm", "closing_Nm"), 0.005, "N m", (("presliding_rad", 2e-3),)),
+             MapTerm("unmodelled_current", "unmodelled", mx.TorqueConstantMap, angle_grid(base, data, 5),
+                     ("delta_Nm_per_A",), 0.002, "N m/A")]
+    if voltage:
+        terms.append(MapTerm("unmodelled_voltage", "unmodelled", mx.CurrentVoltageMap, current_grid(data, base, 7),
+                             ("drop_V",), 0.02, "V"))
+    return terms
+
+
+@dataclasses.dataclass
+class Generic:
+    fit: F.FitResult
+    terms: list
+    lams_rel: list
+    heldout: float
+    tables: dict                  # term id -> component (the fitted table)
+    importance: dict              # term id -> RMS angle residual [deg] with that table removed
+    rms_deg: float                # RMS angle residual of the generic model [deg]
+    shape: dict                   # the description (see describe)
+
+    @property
+    def id(self) -> str:
+        t = max(self.importance, key=self.importance.get) if self.importance else "unmodelled_angle"
+        return "unmodelled_voltage" if t == "unmodelled_voltage" else "unmodelled_torque"
+
+
+def fit_generic(nominal: F.FitResult, data: Data, log=print) -> Generic:
+    """The calibrated nominal model plus the generic tables, fitted by penalized output error."""
+    base_spec = Spec(nominal.spec.base, (), nominal.spec.nominal)
+    x_nom = np.asarray(nominal.x, float)[:len(base_spec.params)]
+    terms = generic_terms(base_spec.base, data)
+    spec = base_spec
+    for t in terms:
+        spec = spec.with_candidate(t.candidate())
+    x0 = np.concatenate([x_nom, np.zeros(sum(t.n_coef for t in terms))])
+    pb = Problem.make(spec, x0, ("nominal",) + tuple(t.id for t in terms), terms)
+    pf = fit_penalized(pb, data, iters=GN_ITER)
+    pbf = dataclasses.replace(pb, x=pf.fit.x)
+    h = heldout_error(pbf, data, pf.lams, pf.jac)
+    vals = spec.values(pf.fit.x)
+    tables = {t.id: t.component(np.array([vals[f"{t.id}.c{k}"] for k in range(t.n_coef)])) for t in terms}
+    rms = _rms_deg(spec, pf.fit.x, data)
+    imp = {}
+    for t in terms:                                   # the RMS residual with this table removed again
+        x = pf.fit.x.copy()
+        for k, (o, _) in enumerate(spec.params):
+            if o == t.id:
+                x[k] = 0.0
+        imp[t.id] = _rms_deg(spec, x, data)
+    g = Generic(pf.fit, terms, pf.lams_rel, h, tables, imp, rms, {})
+    g.shape = describe(g, data)
+    log(f"  outside the catalogue: generic tables, held-out {h:.3g}, RMS {rms:.4f} deg; {g.shape['summary']}")
+    return g
+
+
+def _rms_deg(spec: Spec, x, data: Data) -> float:
+    pred = simulate(*spec.build(x), data)
+    if pred is None:
+        return math.inf
+    r = np.concatenate(angle_residuals_deg(pred, data))
+    r = r[np.isfinite(r)]
+    return float(math.sqrt(np.mean(r ** 2))) if r.size else math.inf
+
+
+# ------------------------------------------------------------------------------------ describing a table
+def periodicity(angle_deg: np.ndarray, value: np.ndarray, weight: np.ndarray | None = None,
+                periods_deg=PERIODS_DEG, harmonics: int = HARMONICS) -> dict:
+    """Is ``value`` over ``angle_deg`` periodic? Least squares on [quadratic trend, harmonics 1..H of 1/P]
+    over a fine grid of trial periods P, refined around the best; R2 = share of the detrended variance the
+    harmonics explain. Returns period_deg, amplitude (half peak-to-peak of the periodic part), r2, cycles,
+    harmonic_share (energy beyond the fundamental) and periodic (R2 >= PERIODIC_R2 over >= MIN_CYCLES)."""
+    a = np.asarray(angle_deg, float)
+    v = np.asarray(value, float)
+    w = np.ones_like(a) if weight is None else np.asarray(weight, float)
+    sw = np.sqrt(w)
+    span = float(a.max() - a.min()) if a.size else 0.0
+    c = (a - a.mean()) / max(span, 1e-9)
+    T = np.stack([np.ones_like(a), c, c ** 2], axis=1)
+    coef, *_ = np.linalg.lstsq(T * sw[:, None], v * sw, rcond=None)
+    det = v - T @ coef
+    var = float(np.sum(w * det ** 2))
+    out = {"period_deg": None, "amplitude": 0.0, "r2": 0.0, "cycles": 0.0, "harmonic_share": 0.0,
+           "periodic": False}
+    tot = float(np.sum(w * (v - np.average(v, weights=w)) ** 2))
+    if var <= 1e-6 * tot or var <= 0 or span <= 0:       # nothing left beyond a smooth trend
+        return out
+
+    def fit(P):
+        cols = [T]
+        for h in range(1, harmonics + 1):
+            ph = 2 * math.pi * h * a / P
+            cols.append(np.stack([np.cos(ph), np.sin(ph)], axis=1))
+        X = np.concatenate(cols, axis=1)
+        b, *_ = np.linalg.lstsq(X * sw[:, None], v * sw, rcond=None)
+        e = v - X @ b
+        return 1.0 - float(np.sum(w * e ** 2)) / var, b
+
+    lo, hi = periods_deg[0], min(periods_deg[1], span)
+    if hi <= lo:
+        return out
+    Ps = np.geomspace(lo, hi, 400)
+    r2 = np.array([fit(P)[0] for P in Ps])
+    # the shortest period within 2 % of the best R2: a multiple of the period fits as well as the period
+    best = float(np.max(r2))
+    k = int(np.flatnonzero(r2 >= best - 0.02)[0]) if best > 0 else int(np.argmax(r2))
+    k = int(np.argmax(np.where(np.abs(np.arange(r2.size) - k) <= 8, r2, -np.inf)))
+    fine = np.linspace(Ps[max(k - 1, 0)], Ps[min(k + 1, Ps.size - 1)], 41)
+    rf = [fit(P)[0] for P in fine]
+    P = float(fine[int(np.argmax(rf))])
+    r2b, b = fit(P)
+    amp_h = [math.hypot(b[3 + 2 * h], b[4 + 2 * h]) for h in range(harmonics)]
+    ph = [2 * math.pi * (h + 1) * a / P for h in range(harmonics)]
+    per = sum(b[3 + 2 * h] * np.cos(ph[h]) + b[4 + 2 * h] * np.sin(ph[h]) for h in range(harmonics))
+    e = np.array(amp_h) ** 2
+    out.update(period_deg=P, amplitude=0.5 * float(np.max(per) - np.min(per)), r2=float(r2b), cycles=span / P,
+               harmonic_share=float(e[1:].sum() / max(e.sum(), 1e-300)),
+               periodic=bool(r2b >= PERIODIC_R2 and span / P >= MIN_CYCLES))
+    return out
+
+
+def _visited(grid_rad: np.ndarray, data: Data) -> np.ndarray:
+    """Samples near each knot (the table is only identified where the recordings went)."""
+    phi = np.radians(np.concatenate([rd.rec.angle_deg for rd in data.recs]))
+    edges = np.concatenate([[-np.inf], 0.5 * (grid_rad[1:] + grid_rad[:-1]), [np.inf]])
+    return np.histogram(phi, edges)[0].astype(float)
+
+
+def describe(g: Generic, data: Data) -> dict:
+    """Words and numbers for the generic tables: which matter, periodic or not, speed, direction, current."""
+    base_rms = g.rms_deg
+    top = max(g.importance.values()) - base_rms if g.importance else 0.0
+    sig = {k: v for k, v in g.importance.items()
+           if v - base_rms > max(0.5 * data.noise_deg, IMPORTANCE_SHARE * top)}
+    words = []
+    shape = {"terms": {}}
+    ta = g.tables["unmodelled_angle"]
+    grid = np.asarray(ta.params.angle_rad)
+    vis = _visited(grid, data)
+    m = vis >= 5
+    adeg = np.degrees(grid)
+    tq = np.asarray(ta.params.torque_Nm)
+    per = periodicity(adeg[m], tq[m], np.minimum(vis[m], 200.0)) if m.sum() >= 8 else \
+        {"periodic": False, "period_deg": None, "amplitude": 0.0, "r2": 0.0, "cycles": 0.0, "harmonic_share": 0.0}
+    shape["angle"] = {"periodic": per["periodic"], "period_deg": per["period_deg"], "amplitude_Nm": per["amplitude"],
+                      "periodic_r2": per["r2"], "harmonic_share": per["harmonic_share"],
+                      "visited_deg": [float(adeg[m].min()), float(adeg[m].max())] if m.any() else None}
+    order = sorted(sig, key=lambda k: -sig[k])
+    for k in order:
+        if k == "unmodelled_angle":
+            if per["periodic"]:
+                wave = "close to a sine" if per["harmonic_share"] < 0.1 else "not a sine (harmonics hold " \
+                    f"{per['harmonic_share']:.0%} of its energy)"
+                words.append(f"a torque periodic in angle: period {per['period_deg']:.1f} deg, amplitude "
+                             f"{per['amplitude']:.3g} N m, waveform {wave}")
+            else:
+                j = int(np.argmax(np.abs(tq[m]))) if m.any() else 0
+                words.append(f"a torque over angle that is not periodic: largest {tq[m][j]:+.3g} N m at "
+                             f"{adeg[m][j]:.0f} deg" if m.any() else "a torque over angle")
+        elif k == "unmodelled_speed":
+            ts = g.tables[k]
+            up, dn = np.asarray(ts.params.opening_Nm), np.asarray(ts.params.closing_Nm)
+            sp = np.asarray(ts.params.speed_rad_s)
+            asym = float(np.max(np.abs(up - dn))) / max(float(np.max(np.abs(np.concatenate([up, dn])))), 1e-12)
+            trend = "rising" if up[-1] + dn[-1] > up[0] + dn[0] else "falling"
+            words.append(f"a friction torque against the motion that depends on speed ({trend} from "
+                         f"{0.5 * (up[0] + dn[0]):+.3g} N m at rest to {0.5 * (up[-1] + dn[-1]):+.3g} N m at "
+                         f"{sp[-1]:.3g} rad/s)" + ("; it differs by direction" if asym > 0.3 else
+                                                   "; the same in both directions"))
+            shape["speed"] = {"direction_dependent": bool(asym > 0.3), "trend": trend}
+        elif k == "unmodelled_current":
+            tc = g.tables[k]
+            dk = np.asarray(tc.params.delta_Nm_per_A)
+            words.append(f"a torque proportional to current, {dk.min():+.3g} to {dk.max():+.3g} N m/A over the stroke")
+        elif k == "unmodelled_voltage":
+            tv = g.tables[k]
+            ci, dv = np.asarray(tv.params.current_A), np.asarray(tv.params.drop_V)
+            words.append(f"a voltage drop over current in the coil loop, {dv[0]:+.3g} V at {ci[0]:.2g} A to "
+                         f"{dv[-1]:+.3g} V at {ci[-1]:.2g} A")
+        shape["terms"][k] = {"rms_without_deg": g.importance[k]}
+    if not words:
+        words.append("no single table dominates; the mismatch is spread over angle, speed and current")
+    shape["summary"] = "outside the catalogue: " + "; ".join(words)
+    shape["significant_terms"] = order
+    return shape
+
+
+# ------------------------------------------------------------------------------------ the decision
+def compare(generic: Generic, heldout_catalogue: float, rms_nominal_deg: float, data: Data) -> bool:
+    """True when the generic tables explain the residual better than the catalogue model (held-out error
+    lower by GAIN_OUT, or periodic in angle and no worse) and lower the nominal model's RMS by RMS_GAIN."""
+    if not generic.importance or not math.isfinite(generic.rms_deg):
+        return False
+    if generic.rms_deg > (1.0 - RMS_GAIN) * rms_nominal_deg:
+        return False
+    better = generic.heldout < (1.0 - GAIN_OUT) * heldout_catalogue
+    periodic = generic.shape.get("angle", {}).get("periodic", False) and \
+        "unmodelled_angle" in generic.shape.get("significant_terms", []) and \
+        generic.heldout <= 1.02 * heldout_catalogue
+    return bool(better or periodic)

@@ -1,0 +1,148 @@
+"""Tables learned from the data (effects_maps, diagnose.shapes) and physics outside the catalogue
+(diagnose.unmodelled): components, plant files, the penalized fit, the periodicity analysis, and one
+end-to-end diagnosis of a detent torque that no candidate describes."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from etb_gym import make_plant
+from etb_gym.components import effects as fx
+from etb_gym.components.effects_maps import table_lookup
+from etb_gym.diagnose import fit as F
+from etb_gym.diagnose import shapes as S
+from etb_gym.diagnose import unmodelled as U
+from etb_gym.diagnose.model import Spec, prepare
+from etb_gym.diagnose.synthetic import make_recording
+from etb_gym.plantfile import load_plant, save_plant
+
+DUTY = np.concatenate([np.full(200, 0.5), np.zeros(200), np.linspace(0, 1, 300), np.full(200, -0.3)])
+ANG = tuple(np.radians(np.linspace(0.0, 90.0, 13)))
+
+
+def _maps():
+    a = np.asarray(ANG)
+    return [fx.AngleTorqueMap(angle_rad=ANG, torque_Nm=tuple(0.03 * np.sin(6 * a))),
+            fx.TorqueConstantMap(angle_rad=ANG, delta_Nm_per_A=tuple(-0.02 * a)),
+            fx.AngleFrictionMap(angle_rad=ANG, level_Nm=tuple(0.05 * a)),
+            fx.SpeedFrictionMap(speed_rad_s=(0.0, 0.1, 1.0, 10.0), opening_Nm=(0.05, 0.03, 0.0, 0.0),
+                                closing_Nm=(0.04, 0.02, 0.01, 0.0)),
+            fx.CurrentVoltageMap(current_A=(-5.0, -1.0, 0.0, 1.0, 5.0), drop_V=(-0.6, -0.3, 0.0, 0.3, 0.6))]
+
+
+def test_table_lookup_is_numpy_interp_clamped():
+    g = np.array([0.0, 0.3, 0.5, 1.2, 2.0])
+    v = np.array([1.0, -2.0, 0.5, 0.0, 3.0])
+    q = np.concatenate([[g.size], g, v])
+    for x in np.concatenate([np.linspace(-1, 3, 57), g]):
+        assert table_lookup.py_func(x, q, 1, g.size, 1 + g.size) == pytest.approx(np.interp(x, g, v), abs=1e-12)
+        assert table_lookup(x, q, 1, g.size, 1 + g.size) == pytest.approx(np.interp(x, g, v), abs=1e-12)
+
+
+@pytest.mark.parametrize("k", range(5), ids=["angle_torque", "torque_constant", "angle_friction", "speed_friction",
+                                              "current_voltage"])
+def test_map_components_act_round_trip_and_load_in_gym(k, tmp_path):
+    m = _maps()[k]
+    nominal = make_plant("3B").simulate(duty=DUTY).angle_deg
+    zero = type(m)(m.params.replace(**{f: tuple(0.0 for _ in getattr(m.params, f)) for f in m.value_fields}))
+    np.testing.assert_allclose(make_plant("3B", effects=[zero]).simulate(duty=DUTY).angle_deg, nominal, atol=1e-9)
+    p = make_plant("3B", effects=[m])
+    assert p.fast
+    a = p.simulate(duty=DUTY).angle_deg
+    assert np.max(np.abs(a - nominal)) > 0.05
+    np.testing.assert_allclose(p.simulate(duty=DUTY, path="plain").angle_deg, a, atol=1e-6)
+    q = load_plant(save_plant(p, tmp_path / "twin.toml"))
+    assert q.effects[0] == m
+    np.testing.assert_allclose(q.simulate(duty=DUTY).angle_deg, a)
+    if k == 0:
+        import gymnasium as gym
+        env = gym.make("ETB-3B-v0", plant=str(tmp_path / "twin.toml"))
+        env.reset(seed=0)
+        env.step(env.action_space.sample())
+        env.close()
+
+
+def test_map_params_errors_name_the_field():
+    with pytest.raises(ValueError, match=r"AngleTorqueMapParams\.angle_rad .*strictly increasing"):
+        fx.AngleTorqueMap(angle_rad=(0.0, 0.5, 0.4), torque_Nm=(0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"torque_Nm.*one value per knot of angle_rad \(2\)"):
+        fx.AngleTorqueMap(angle_rad=(0.0, 1.0), torque_Nm=(0.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match=r"drop_V\[1\] = nan"):
+        fx.CurrentVoltageMap(current_A=(-1.0, 1.0), drop_V=(0.0, float("nan")))
+    with pytest.raises(ValueError, match=r"speed_rad_s .*knots >= 0"):
+        fx.SpeedFrictionMap(speed_rad_s=(-1.0, 1.0), opening_Nm=(0, 0), closing_Nm=(0, 0))
+
+
+@pytest.mark.parametrize("P,wave", [(17.0, "saw"), (11.0, "square"), (28.0, "sine")])
+def test_periodicity_finds_period_of_non_sine_waveforms(P, wave):
+    a = np.linspace(3.0, 88.0, 69)
+    x = 2 * np.pi * (a - 4.0) / P
+    v = {"saw": sum((-1) ** (h + 1) * np.sin(h * x) / h for h in range(1, 7)), "square": np.tanh(3 * np.sin(x)),
+         "sine": np.sin(x)}[wave]
+    rng = np.random.default_rng(0)
+    out = U.periodicity(a, 0.01 * v + 0.002 * (a / 90) ** 2 + 1e-4 * rng.normal(size=a.size))
+    assert out["periodic"] and abs(out["period_deg"] - P) < 0.03 * P, out
+    if wave == "saw":
+        assert out["harmonic_share"] > 0.1, out
+    if wave == "sine":
+        assert out["harmonic_share"] < 0.02, out
+
+
+def test_periodicity_rejects_a_bump_and_a_ramp():
+    a = np.linspace(0.0, 90.0, 73)
+    assert not U.periodicity(a, np.exp(-0.5 * ((a - 50) / 12) ** 2))["periodic"]
+    assert not U.periodicity(a, 0.01 * a)["periodic"]
+
+
+def test_refined_airflow_table_beats_the_polynomial_on_a_gaussian_bump():
+    """The penalized table fit (roughness by CV) of a Gaussian airflow bump, started from the catalogue's
+    polynomial fit: lower held-out error, and the table follows the true bump where the data went."""
+    from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.shapes_eval import AngleShape
+    bump = AngleShape(peak_Nm=-0.06, centre_rad=math.radians(45.0), width_rad=math.radians(12.0))
+    truth = make_plant("3B", substeps=40, effects=[bump])
+    rec = make_recording(truth, np.random.default_rng(5), duration_s=4.0, name="bump.csv")
+    data = prepare([rec], 12.0)
+    base = make_plant("3B", substeps=20)
+    spec = Spec(base).with_candidate(CANDIDATES["airflow_torque"])
+    formula = F.fit(spec, data, max_nfev=30)
+    ref = S.refine_family(formula, "airflow_torque", data, log=lambda *a: None)
+    assert ref.kept and ref.heldout_map < 0.5 * ref.heldout_formula, (ref.heldout_map, ref.heldout_formula)
+    tab = ref.table()
+    phi = np.asarray(tab["angle_rad"])
+    poly = CANDIDATES["airflow_torque"]
+    vals = formula.values
+    x = phi / (0.5 * np.pi)
+    total = np.asarray(tab["torque_Nm"]) + x ** 2 * (vals["airflow_torque.quadratic_Nm"] + vals["airflow_torque.cubic_Nm"] * x)
+    true = -0.06 * np.exp(-0.5 * ((phi - math.radians(45.0)) / math.radians(12.0)) ** 2)
+    seen = (np.degrees(phi) > 15) & (np.degrees(phi) < 75)
+    # up to a straight line in phi, which the refitted spring preload and rate take
+    e = (total - true)[seen]
+    A = np.stack([np.ones(seen.sum()), phi[seen]], axis=1)
+    e = e - A @ np.linalg.lstsq(A, e, rcond=None)[0]
+    assert np.max(np.abs(e)) < 0.012, np.c_[np.degrees(phi[seen]), total[seen], true[seen], e]
+    assert poly.id == "airflow_torque"
+
+
+def test_detent_torque_is_reported_outside_the_catalogue_with_its_period(tmp_path):
+    """A periodic detent torque (not in the library): no catalogue effect is given, the report says
+    'outside the catalogue' with id unmodelled_torque and the period, the plant file keeps the table."""
+    from etb_gym.diagnose import diagnose
+    from etb_gym.diagnose.shapes_eval import Cogging
+    P = 16.0
+    truth = make_plant("3B", substeps=40, effects=[Cogging(amplitude_Nm=0.012, period_rad=math.radians(P),
+                                                           phase_rad=0.05, waveform=1.0)])
+    rec = make_recording(truth, np.random.default_rng(2), duration_s=3.0, name="detent.csv")
+    res = diagnose([rec], out=tmp_path / "d", jobs=1, progress=False, verbose=False, max_effects=1, substeps=20,
+                   candidates=("airflow_torque", "stribeck_friction"))
+    rep = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert rep["effects"] == [], rep["effects"]
+    u = rep["unexplained"][0]
+    assert u["id"] == "unmodelled_torque" and "outside the catalogue" in u["description"]
+    assert u["shape"]["angle"]["periodic"] and abs(u["shape"]["angle"]["period_deg"] - P) < 0.1 * P, u["shape"]
+    assert (tmp_path / "d" / "shapes.png").exists() and rep["shape_figures"] == ["shapes.png"]
+    twin = load_plant(tmp_path / "d" / "calibrated_plant.toml")
+    assert any(e.kind == "effect.angle_torque_map" for e in twin.effects)
+    assert rep["rms_after_deg"] < 0.5 * rep["rms_before_deg"]
+    assert res.verdict == "unexplained"
