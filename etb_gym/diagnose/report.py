@@ -13,6 +13,7 @@ from ..plantfile import save_plant
 from . import locate as L
 from .candidates import CANDIDATES
 from .model import angle_residuals_deg, simulate
+from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_residual
 
 
 FIGURES = ("residual_time.png", "residual_regimes.png", "angle_fit.png", "shapes.png")
@@ -66,14 +67,13 @@ def _where(before, after, top=2):
 
 
 def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor, opts, elapsed):
-    from .run import RMS_K, QUANT_K, Result, _significant_residual
 
     names = [r.name for r in recs]
     tab0, regs = _regimes(data, base, res0, nominal.spec.build(nominal.x))
     tab1, _ = _regimes(data, base, res1, (plant, sensor))
     before, after = _merge_tables(tab0), _merge_tables(tab1)
-    sig0 = _significant_residual(data, res0)
-    sig1 = _significant_residual(data, res1)
+    sig0 = significant_residual(data, res0)
+    sig1 = significant_residual(data, res1)
     windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg) for rd, r in zip(data.recs, res0)}
     effects = []
     prev = nominal
@@ -132,7 +132,7 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
                       "unit": p.unit} for n, v, (_, p) in zip(final.spec.names, final.spec.values(final.x).values(),
                                                                 final.spec.params) if _ == "nominal"}
     report = {
-        "schema": "etb-gym/diagnosis/1",
+        "schema": SCHEMA,
         "model": base.model or "custom",
         "recordings": names,
         "verdict": verdict,
@@ -348,7 +348,7 @@ def write_failed(out: Path, reason: str, *, model: str, recordings: list, exc: B
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    rep = {"schema": "etb-gym/diagnosis/1", "model": model, "recordings": list(recordings), "verdict": "failed",
+    rep = {"schema": SCHEMA, "model": model, "recordings": list(recordings), "verdict": "failed",
            "reason": reason}
     if exc is not None:
         rep["error_type"] = type(exc).__name__

@@ -16,16 +16,13 @@ import numpy as np
 from ..plant import MODELS, Plant, make_plant
 from ..recordings import Recording, load_recording
 from . import fit as F
-from . import locate as L
 from .candidates import CANDIDATES, FITTED_CANDIDATES
 from .explain import Runner, select
 from .measurement import DEFAULT_RESOLUTION_DEG
 from .model import Data, SimulationFailed, Spec, angle_residuals_deg, prepare, simulate
+from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_residual  # noqa: F401  (re-exported)
 
-SCHEMA = "etb-gym/diagnosis/1"
-RMS_K = 1.5          # the recording matches when the RMS residual is within RMS_K x the noise floor
-QUANT_K = 1.5        # a resolution this much coarser than assumed is reported
-
+_significant_residual = significant_residual
 
 @dataclasses.dataclass
 class Options:
@@ -39,35 +36,6 @@ class Options:
     substeps: int | None = None                # integrator substeps per sample; None: chosen (choose_substeps)
     progress: bool = True
     verbose: bool = True
-
-
-@dataclasses.dataclass
-class Result:
-    report: dict
-    data: Data
-    nominal_fit: F.FitResult
-    final_fit: F.FitResult
-    residual_before: list
-    residual_after: list
-    regimes_before: list
-    regimes_after: list
-    plant: Plant
-    sensor: object
-    elapsed_s: float
-
-    @property
-    def verdict(self) -> str:
-        return self.report["verdict"]
-
-
-def _significant_residual(data: Data, res: list) -> bool:
-    for rd, r in zip(data.recs, res):
-        if L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg):
-            return True
-        tol2 = float(np.mean(rd.tol_deg ** 2)) if rd.tol_deg is not None else 0.0
-        if math.sqrt(float(np.mean(r ** 2))) > RMS_K * math.sqrt(rd.noise_deg ** 2 + tol2):
-            return True
-    return False
 
 
 def numerical_tolerance(spec: Spec, x, data: Data) -> None:
@@ -177,7 +145,7 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
         if sig0:
             final, steps = select(nominal, data, runner, [c for c in opts.candidates if CANDIDATES[c].fit],
                                   significant, opts.max_effects, bar, log, skipped)
-            from .shapes import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
+            from .refine import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
             final, steps, shaped = refine(nominal, final, steps, data, significant, log=log)
         else:
             final, steps = nominal, []

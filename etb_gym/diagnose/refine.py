@@ -1,0 +1,174 @@
+"""The diagnosis's entry point for shapes from the data and physics outside the catalogue
+(docs/diagnosis-shapes.md): after the greedy selection, refine the accepted family's formula with a table
+(:mod:`.shapes`) and, where a significant residual remains, let the generic tables of :mod:`.unmodelled`
+compete with the catalogue on held-out data. It sits above both modules, which import neither it nor each other
+in a cycle."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..components import effects_maps as mx
+from . import fit as F
+from .model import Data
+from .shapes import MIN_GAIN, Problem, heldout_error, plot_table, refine_family
+
+FAMILY_OF_TERM = {"unmodelled_angle": ("airflow_torque", "spring_asymmetry", "angle_dependent_friction"),
+                  "unmodelled_speed": ("stribeck_friction", "angle_dependent_friction"),
+                  "unmodelled_current": ("shaft_flux_loss", "torque_constant_error"),
+                  "unmodelled_voltage": ("supply_drop", "coil_heating", "inductance_saturation")}
+
+
+@dataclasses.dataclass
+class Outcome:
+    """What :func:`refine` did: refined family tables, the generic fit (if run) and whether it replaced
+    the catalogue's explanation (``outside``)."""
+
+    refinements: list = dataclasses.field(default_factory=list)
+    generic: object = None                 # unmodelled.Generic
+    outside: bool = False
+    heldout_catalogue: float | None = None
+    dropped: tuple = ()                    # catalogue ids the generic model displaced
+
+    def entries(self, names, rms_before_deg: float) -> tuple[dict, list]:
+        """(per effect id: the "shape" to add to that effect, entries to put first under "unexplained")."""
+        shapes = {}
+        for ref in self.refinements:
+            if ref.kept:
+                shapes[ref.family_id] = {"table": ref.table(), "roughness_weight": ref.lam_rel,
+                                         "heldout_formula": ref.heldout_formula, "heldout_map": ref.heldout_map,
+                                         "description": f"the shape of {ref.family_id} learned from the data "
+                                                        f"({ref.term.cls.kind} in the plant file, added to the formula)"}
+        unexplained = []
+        if self.outside and self.generic is not None:
+            g = self.generic
+            tables = {k: {"component": c.kind, **{f: list(v) if isinstance(v, tuple) else v
+                                                  for f, v in c.params.to_dict().items()}}
+                      for k, c in g.tables.items()}
+            displaced = (f"; catalogue effects that fitted less well on held-out data: {', '.join(self.dropped)}"
+                         if self.dropped else "")
+            unexplained.append({"id": g.id, "recording": ", ".join(names), "where": "throughout",
+                                "rms_deg": rms_before_deg,
+                                "description": g.shape["summary"] + "; kept in the calibrated plant as tables "
+                                f"(held-out error {g.heldout:.3g} against {self.heldout_catalogue:.3g} for the "
+                                f"catalogue{displaced})",
+                                "outside_catalogue": True, "shape": g.shape, "tables": tables,
+                                "heldout_generic": g.heldout, "heldout_catalogue": self.heldout_catalogue})
+        return shapes, unexplained
+
+    def plot(self, path) -> str | None:
+        """The learned tables on a matplotlib Agg canvas, written to ``path`` (None: nothing to draw)."""
+        panels = [(r.term, r.table(), f"{r.family_id}: shape learned from the data") for r in self.refinements if r.kept]
+        if self.outside and self.generic is not None:
+            g = self.generic
+            for t in g.terms:
+                if t.id in g.shape.get("significant_terms", []) or t.id == "unmodelled_angle":
+                    c = g.tables[t.id]
+                    tab = {k: list(v) if isinstance(v, tuple) else v for k, v in c.params.to_dict().items()}
+                    panels.append((t, tab, f"outside the catalogue ({g.id}): {t.cls.description}"))
+        if not panels:
+            return None
+        from pathlib import Path
+
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+        fig = Figure(figsize=(7, 2.6 * len(panels)))
+        FigureCanvasAgg(fig)
+        for k, (t, tab, title) in enumerate(panels):
+            plot_table(fig.add_subplot(len(panels), 1, k + 1), t, tab, title)
+        fig.tight_layout()
+        from ..io import write_atomic
+
+        path = write_atomic(Path(path), lambda fh: fig.savefig(fh, dpi=100, format="png"))
+        return path.name
+
+    def attach(self, result, out=None) -> None:
+        """Add the shapes and the outside-the-catalogue entry to ``result.report`` (and the plot to ``out``)."""
+        rep = result.report
+        shapes, unexplained = self.entries(rep["recordings"], rep["rms_before_deg"])
+        for e in rep["effects"]:
+            if e["id"] in shapes:
+                e["shape"] = shapes[e["id"]]
+        rep["unexplained"] = unexplained + list(rep["unexplained"])
+        if self.outside:
+            rep["outside_catalogue"] = unexplained[0]["id"] if unexplained else None
+        if out is not None:
+            name = self.plot(Path_(out) / "shapes.png")
+            if name:
+                rep["shape_figures"] = [name]
+
+
+def Path_(p):
+    from pathlib import Path
+    return Path(p)
+
+
+def _heldout_catalogue(nominal: F.FitResult, cur: F.FitResult, steps, refinements, data: Data) -> float:
+    kept = [r for r in refinements if r.kept]
+    if kept:
+        return kept[-1].heldout_map
+    if refinements:
+        return refinements[-1].heldout_formula
+    ids = ("nominal",) + tuple(c.id for c in cur.spec.candidates)
+    return heldout_error(Problem.make(cur.spec, cur.x, ids), data)
+
+
+def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, significant, log=print,
+           outside: bool = True):
+    """After the greedy selection: refine each accepted family's shape by its table (kept when the held-out
+    error falls by MIN_GAIN), then, if a significant residual remains (or nothing was accepted, or a learned
+    angle table looks periodic), fit the generic tables of :mod:`.unmodelled` and let them replace the
+    catalogue's explanation when they predict held-out data better. Returns (final fit, steps, Outcome)."""
+    from . import unmodelled as U
+    res = Outcome()
+    cur = final
+    done = False
+    if len(steps) > 1:
+        # later effects may only have patched the first formula's wrong shape: the first effect with its
+        # table replaces them all when it predicts held-out data as well as all of them
+        first = refine_family(steps[0].fit, steps[0].id, data, log)
+        if first is not None and first.kept:
+            ids = ("nominal",) + tuple(c.id for c in final.spec.candidates)
+            h_all = heldout_error(Problem.make(final.spec, final.x, ids), data)
+            if first.heldout_map <= (1.0 + MIN_GAIN) * h_all:
+                log(f"  {steps[0].id} with its table (held-out {first.heldout_map:.3g}) does as well as all "
+                    f"{len(steps)} effects ({h_all:.3g}): {', '.join(st.id for st in steps[1:])} dropped")
+                res.refinements = [first]
+                cur, steps, done = first.fit, steps[:1], True
+    for st in ([] if done else steps):
+        ref = refine_family(cur, st.id, data, log)
+        if ref is None:
+            continue
+        res.refinements.append(ref)
+        if ref.kept:
+            cur = ref.fit
+    if not outside:
+        return cur, steps, res
+    periodic = False
+    for ref in res.refinements:
+        if ref.kept and ref.term.cls is mx.AngleTorqueMap:
+            tab = ref.table()
+            periodic |= U.periodicity(np.degrees(tab["angle_rad"]), np.asarray(tab["torque_Nm"]))["periodic"]
+    if steps and not periodic and not significant(cur):
+        return cur, steps, res
+    res.heldout_catalogue = h_cat = _heldout_catalogue(nominal, cur, steps, res.refinements, data)
+    g = U.fit_generic(nominal, data, log=log)
+    res.generic = g
+    rms_nom = U._rms_deg(nominal.spec, nominal.x, data)
+    if U.compare(g, h_cat, rms_nom, data):
+        named = {st.id for st in steps}
+        dom = g.shape.get("significant_terms", [])
+        same = (dom and not g.shape.get("angle", {}).get("periodic", False)
+                and named & set(FAMILY_OF_TERM.get(dom[0], ())))
+        if same:
+            log(f"  the generic tables fit better, but their main term ({dom[0]}) is what {sorted(named)} "
+                "describes: the catalogue's name is kept")
+            return cur, steps, res
+        res.outside = True
+        res.dropped = tuple(st.id for st in steps)
+        log(f"  outside the catalogue ({g.id}): held-out {g.heldout:.3g} against {h_cat:.3g} for the catalogue model"
+            + (f"; {', '.join(res.dropped)} not given as the explanation" if res.dropped else ""))
+        return g.fit, [], res
+    log(f"  generic tables: held-out {g.heldout:.3g} against {h_cat:.3g} for the catalogue model: not needed")
+    return cur, steps, res
