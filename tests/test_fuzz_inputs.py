@@ -473,11 +473,7 @@ def test_generated_diagnose_cli_arguments(tmp_path, monkeypatch, capsys):
 
 
 def test_generated_benchmark_cli_arguments(tmp_path, monkeypatch, capsys):
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("bench_script", Path(__file__).parents[1] / "scripts" / "benchmark.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    from etb_gym import benchmark_cli as mod      # what `etb-gym benchmark` and scripts/benchmark.py run
 
     class Stop(BaseException):
         pass
