@@ -11,6 +11,7 @@ from gymnasium import spaces
 
 from etb_gym.components.base import show
 from etb_gym.components.sensor import PositionSensor, PositionSensorParams
+from etb_gym.components.supply import SUPPLY_RANGE_V
 from etb_gym.jit import kernel, py_func
 from etb_gym.plant import MODELS, Plant, make_plant
 from etb_gym.variants import MIN_COIL_TEMPERATURE_C, PlantVariant
@@ -254,7 +255,7 @@ class ETBEnv(gym.Env):
         if self.max_steps < 1:
             raise ValueError(f"episode_s = {episode_s!r} is shorter than one control period ({self.dt} s)")
         self.supply_V = p.supply.voltage_V if supply_V is None else \
-            _finite_number("supply_V", supply_V, 1e-9, math.inf, "a voltage > 0 V")
+            _finite_number("supply_V", supply_V, *SUPPLY_RANGE_V, "a voltage in [%g, %g] V" % SUPPLY_RANGE_V)
         # ---- sensor (construction time only; the noise level may be randomized per episode)
         if sensor is not None and not isinstance(sensor, Mapping):
             raise ValueError(f"sensor = {sensor!r}: expected a dict of PositionSensorParams overrides")
@@ -366,6 +367,8 @@ class ETBEnv(gym.Env):
                 raise ValueError(f"randomize[{k!r}] = {v!r}: expected non-negative bounds")
             if k in ("supply_V", "inertia_scale") and lo <= 0:
                 raise ValueError(f"randomize[{k!r}] = {v!r}: expected bounds > 0")
+            if k == "supply_V" and not (SUPPLY_RANGE_V[0] <= lo and hi <= SUPPLY_RANGE_V[1]):
+                raise ValueError(f"randomize[{k!r}] = {v!r}: expected voltages in [%g, %g] V" % SUPPLY_RANGE_V)
             if k == "coil_temperature_C" and lo <= MIN_COIL_TEMPERATURE_C:
                 raise ValueError(f"randomize[{k!r}] = {v!r}: expected temperatures above "
                                  f"{MIN_COIL_TEMPERATURE_C:.0f} C (R > 0)")
@@ -478,7 +481,8 @@ class ETBEnv(gym.Env):
             if "sensor_noise_std_deg" in draws:
                 noise = draws["sensor_noise_std_deg"] / RAD2DEG
         if opts.get("supply_V") is not None:
-            V = _finite_number("options['supply_V']", opts["supply_V"], 1e-9, math.inf, "a voltage > 0 V")
+            V = _finite_number("options['supply_V']", opts["supply_V"], *SUPPLY_RANGE_V,
+                               "a voltage in [%g, %g] V" % SUPPLY_RANGE_V)
         P = self.plant.param_vector(overrides) if overrides else self._P_nominal
         spec = opts.get("reference")
         if spec is not None:
@@ -587,8 +591,7 @@ class ETBEnv(gym.Env):
             d = 1.0 if d > 1.0 else -1.0
         k, dt, x = self._k, self.dt, self._x
         if not self._control_step(x, d, self._V, self._P, k * dt, dt, self._nsub, self._sw, self._fpwm, self._aux):
-            raise FloatingPointError(f"ETB plant state became non-finite at t = {(k + 1) * dt:.6f} s: "
-                                     f"{dict(zip(self.plant.state_names, x.tolist()))}")
+            raise FloatingPointError(self.plant.divergence_message(x, (k + 1) * dt))
         k += 1
         self._k = k
         r = self._tab.item(k) if k <= self.max_steps else self._ref((k) * dt)

@@ -354,9 +354,8 @@ class ETBVectorEnv(VectorEnv):
         live = ~self._autoreset
         if not ok.all() and not ok[live].all():
             k = int(np.argmax(~ok & live))
-            raise FloatingPointError(f"sub-env {k}: ETB plant state became non-finite at t = "
-                                     f"{(self._K[k] + 1) * env.dt:.6f} s: "
-                                     f"{dict(zip(self.plant.state_names, self._X[k]))}")
+            raise FloatingPointError(f"sub-env {k}: "
+                                     + self.plant.divergence_message(self._X[k], (self._K[k] + 1) * env.dt))
         reward = np.empty(N)
         trunc = np.empty(N, bool)
         step_rewards(d, self._duty, self._X, self._K, self._tab, env.max_steps, self._weights, reward, trunc)

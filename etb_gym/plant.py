@@ -24,8 +24,8 @@ from .components.friction import FRICTIONS
 from .components.rotor import RotorParams
 from .components.spring import LimpHomeSpring
 from .components.stops import EndStops
-from .components.supply import SupplyParams
-from .integrate import Engine, solve_ivp_reference
+from .components.supply import SUPPLY_RANGE_V, SupplyParams
+from .integrate import Engine, ensure_thread_pool, solve_ivp_reference
 
 MODELS = tuple(f"{f}{d}" for f in "123" for d in "ABC")
 CORE_ROLES = ("drive", "friction", "spring", "stops")
@@ -108,9 +108,10 @@ class Plant:
         for role, c in (("friction", friction), ("spring", spring), ("stops", stops)):
             if c is not None and not isinstance(c, Component):
                 raise ValueError(f"Plant.{role} must be a Component or None, got {type(c).__name__}")
-        if not (isinstance(control_period_s, (int, float)) and math.isfinite(control_period_s) and control_period_s > 0):
+        if isinstance(control_period_s, bool) or not (isinstance(control_period_s, (int, float))
+                                                      and math.isfinite(control_period_s) and control_period_s > 0):
             raise ValueError(f"Plant.control_period_s = {control_period_s!r} is invalid: expected a finite value > 0 s")
-        if not (isinstance(substeps, (int, np.integer)) and substeps >= 1):
+        if isinstance(substeps, bool) or not (isinstance(substeps, (int, np.integer)) and substeps >= 1):
             raise ValueError(f"Plant.substeps = {substeps!r} is invalid: expected an integer >= 1")
         if not isinstance(rotor, RotorParams):
             raise ValueError(f"Plant.rotor must be RotorParams, got {type(rotor).__name__}")
@@ -420,9 +421,11 @@ class Plant:
         Vs = np.broadcast_to(np.asarray(V, float), (n,)).copy() if np.ndim(V) == 0 else np.asarray(V, float)
         if Vs.shape != (n,):
             raise ValueError(f"supply_V has shape {Vs.shape}: expected a scalar or shape ({n},)")
-        if not np.all(np.isfinite(Vs)) or np.any(Vs <= 0):
-            k = int(np.argmax(~np.isfinite(Vs) | (Vs <= 0)))
-            raise ValueError(f"supply_V[{k}] = {show(Vs[k])}: expected a finite voltage > 0 V")
+        lo, hi = SUPPLY_RANGE_V
+        bad = ~np.isfinite(Vs) | (Vs < lo) | (Vs > hi)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise ValueError(f"supply_V[{k}] = {show(Vs[k])} is invalid: expected a voltage in [{lo:g}, {hi:g}] V")
         if (duty is None) == (voltage is None):
             raise ValueError("give exactly one of duty= (H-bridge duty in [-1, 1]) or voltage= (V)")
         if duty is not None:
@@ -477,8 +480,7 @@ class Plant:
         done = fns.simulate(x0, d, Vs, self.P, float(t0), self.control_period_s, self.substeps,
                             self.supply.switching, self.supply.pwm_frequency_hz, X, A)
         if done < n:
-            raise FloatingPointError(f"the state became non-finite in control period {done} "
-                                     f"(t = {t0 + done * self.control_period_s:.6f} s): {_states_text(self.state_names, X[done + 1])}")
+            raise FloatingPointError(self.divergence_message(X[done + 1], t0 + (done + 1) * self.control_period_s))
         return self._trajectory(X, A, d, Vs, t0)
 
     def _trajectory(self, X, A, d, Vs, t0):
@@ -528,7 +530,11 @@ class Plant:
         n = X.shape[0]
         ok = np.empty(n, dtype=np.bool_)
         fns = self.engine.fns
-        fn = fns.batch_step if (n > 1 if parallel is None else parallel) else fns.batch_step_serial
+        if n > 1 if parallel is None else parallel:
+            ensure_thread_pool()          # once per process: numba's pool sleeps, not spins (integrate.py)
+            fn = fns.batch_step
+        else:
+            fn = fns.batch_step_serial
         fn(X, duty, supply_V, P, t0, self.control_period_s, self.substeps, self.supply.switching,
            self.supply.pwm_frequency_hz, aux, ok)
         return ok
@@ -547,8 +553,16 @@ class Plant:
         ok = self.engine.fns.control_step(x, d, V, self.P if P is None else P, float(t0), self.control_period_s, self.substeps,
                                           self.supply.switching, self.supply.pwm_frequency_hz, aux)
         if not ok:
-            raise FloatingPointError(f"the plant state became non-finite: {_states_text(self.state_names, x)}")
+            raise FloatingPointError(self.divergence_message(x, float(t0) + self.control_period_s))
         return x
+
+    def divergence_message(self, x, t_s: float) -> str:
+        """The sentence a caller raises when the stepper reports a state that is not physical."""
+        state = ", ".join(f"{n} = {float(v):.6g}" for n, v in zip(self.state_names, x))
+        return (f"the simulation diverged at t = {t_s:.6f} s: the state left the physical range (not finite, the "
+                f"plate more than 29 deg beyond an end stop, or a coil current beyond 4 x supply / resistance): "
+                f"{state}. The parameters are outside what the fixed-rate stepper is stable for "
+                f"(docs/model.md, sec. 9)")
 
 
 def make_plant(model: str = "3B", overrides: Mapping[str, float] | None = None, *,

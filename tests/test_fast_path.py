@@ -1,11 +1,8 @@
 """The compiled fast path equals the plain reference path; the batch step equals N single steps; a plant
-without compiled kernels falls back visibly, and scripts/bench_speed.py says so (issue 7)."""
+without compiled kernels falls back visibly (issue 7; the speed harness's report of it: tests/test_speed.py)."""
 import dataclasses
-import importlib.util
-import json
 import math
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +10,7 @@ import pytest
 
 from etb_gym import make_plant
 from etb_gym.components import LuGreFriction
-from etb_gym.components.base import REGISTRY, Component, Params
+from etb_gym.components.base import Component, Params
 from etb_gym.components.effects_electrical import CoilHeating
 from etb_gym.components.effects_friction import AngleDependentFriction, StribeckFriction
 from etb_gym.components.effects_mechanical import Backlash
@@ -216,78 +213,6 @@ def test_plain_fallback_is_visible_and_still_correct():
     np.testing.assert_array_equal(X, Xs)
 
 
-def _load_bench():
-    spec = importlib.util.spec_from_file_location("bench_speed", ROOT / "scripts" / "bench_speed.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-QUICK = ["--repeats", "1", "--seconds", "0.01", "--num-envs", "1", "3", "--no-gem", "--no-reference",
-         "--excitation-s", "0.05"]
-REQUIRED = ("etb_steps_per_s", "etb_switching_realtime_factor", "vector_steps_per_s", "pendulum_steps_per_s",
-            "gem_steps_per_s", "reset_us", "ratio_etb_vs_pendulum", "ratio_etb_vs_gem", "excitation_fast_s",
-            "excitation_solve_ivp_s", "fast_path")
-
-
-def test_bench_speed_quick_run_prints_table_and_json_last(capsys, tmp_path):
-    bench = _load_bench()
-    out_json = tmp_path / "speed.json"
-    res = bench.main(QUICK + ["--json-out", str(out_json)])
-    lines = capsys.readouterr().out.strip().splitlines()
-    last = json.loads(lines[-1])
-    assert set(REQUIRED) <= set(last)
-    assert last["gem_steps_per_s"] is None and last["ratio_etb_vs_gem"] is None
-    assert set(last["vector_steps_per_s"]) == {"1", "3"}
-    assert all(v > 0 for v in last["vector_steps_per_s"].values())
-    assert last["etb_steps_per_s"] > 0 and last["reset_us"] > 0
-    assert math.isclose(last["etb_switching_realtime_factor"], last["etb_switching_steps_per_s"] * 1e-3)
-    assert last["fast_path"] is HAVE_NUMBA
-    assert any(l.startswith("| gym.make(\"ETB-3B-v0\")") for l in lines)
-    assert json.loads(out_json.read_text()) == last == json.loads(json.dumps(res))
-
-
-def test_bench_speed_says_when_a_plant_is_on_the_plain_path(capsys, tmp_path, monkeypatch):
-    from etb_gym.plantfile import save_plant
-
-    class PlainTorqueEffect(_PlainTorque):
-        kind = "test.plain_torque_bench"
-
-    monkeypatch.setitem(REGISTRY, PlainTorqueEffect.kind, PlainTorqueEffect)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FastPathUnavailableWarning)
-        path = tmp_path / "plain.json"
-        save_plant(make_plant("3B", effects=[PlainTorqueEffect()]), path)
-        res = _load_bench().main(["--repeats", "1", "--seconds", "0.01", "--num-envs", "2", "--no-gem",
-                                  "--no-reference", "--excitation-s", "0.02", "--plant", str(path)])
-    out = capsys.readouterr().out
-    assert res["fast_path"] is False
-    assert "PLAIN" in out and "no compiled kernel" in out
-
-
-def test_bench_speed_baseline_tree_is_importable(tmp_path):
-    """--baseline REV extracts REV with git archive and lays out its packages as pyproject.toml maps them."""
-    import subprocess
-
-    if subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True).returncode:
-        pytest.skip("not a git checkout")
-    src, pkg = _load_bench().extract_revision("HEAD", tmp_path)
-    assert (src / "scripts" / "bench_speed.py").is_file()
-    code = "import etb_gym.envs.vector as v, etb_gym.controllers as c; print(v.__file__)"
-    out = subprocess.run([sys.executable, "-c", code], env={"PYTHONPATH": str(pkg), "PATH": "/usr/bin:/bin"},
-                         cwd=tmp_path, capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip().startswith(str(pkg))
-
-
-def test_bench_speed_rejects_bad_arguments(capsys):
-    bench = _load_bench()
-    for bad in (["--repeats", "0"], ["--seconds", "-1"], ["--num-envs", "0"], ["--plant", "/nonexistent.toml"]):
-        with pytest.raises(SystemExit):
-            bench.parse_args(bad)
-        assert "expected" in capsys.readouterr().err
-
-
 @needs_numba
 @pytest.mark.parametrize("env, expected", [
     ({}, "OMP_WAIT_POLICY=PASSIVE"),
@@ -301,7 +226,7 @@ def test_thread_pool_sleeps_unless_the_user_chose(env, expected):
     clean = {k: v for k, v in os.environ.items()
              if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "NUMBA_THREADING_LAYER")}
     code = ("import os, etb_gym.integrate as I; "
-            "print(I.THREAD_POOL + '|' + os.environ.get('OMP_WAIT_POLICY', '-'))")
+            "assert I.THREAD_POOL is None; print(I.ensure_thread_pool() + '|' + os.environ.get('OMP_WAIT_POLICY', '-'))")
     out = subprocess.run([sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True,
                          timeout=120, check=True).stdout.strip().splitlines()[-1]
     pool, policy = out.split("|")

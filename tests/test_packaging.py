@@ -103,8 +103,6 @@ def _environ_after_import(code: str) -> dict:
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-@pytest.mark.xfail(strict=True, reason="etb_gym/integrate.py:configure_thread_pool sets OMP_WAIT_POLICY at import "
-                                       "(H12's file; change proposed to the lead). Remove this mark once it passes.")
 def test_importing_the_package_changes_no_environment_variable():
     assert _environ_after_import("import etb_gym, etb_gym.envs, etb_gym.controllers, etb_gym.rl, "
                                  "etb_gym.diagnose, gymnasium as gym; gym.make('ETB-3B-v0')") == {}

@@ -23,6 +23,23 @@ the Stribeck curve g(omega)) may declare ``carry(phi, omega, i, p) -> float``; i
 take that value as an extra last argument ``c``. The integrator computes it once per substep, at the new
 state, and hands it to the advance and to the next substep's kernel, which sees exactly that state; so
 a carry must depend on nothing but (phi, omega, i, p), never on t, u or the component's own states.
+
+A component whose torque or voltage *jumps* at fixed angles (a contact that starts to damp: the end stops,
+the limp-home contact) declares ``edges(phi0, omega0, phi1, omega1, p) -> theta``: the fraction theta in
+(0, 1) of a substep at which the angle (or velocity), moving from phi0 to phi1 (omega0 to omega1), first
+crosses one of those values (``crossing``), or 2.0 if it crosses none. The stepper then splits the substep
+there, so that the scheme's order is not lost to the jump (etb_gym/integrate.py, "Contacts").
+
+A stiff contact declares ``rate(phi, omega, J, p) -> 1/s``: the natural frequency sqrt(k/J) of the contact
+while an impact is under way at (phi, omega) (J the inertia), 0 otherwise. The stepper cuts a substep that would be
+too long for it into pieces of at most RHO_MAX / rate (integrate.py, "Contacts"), so an
+impact is integrated accurately at any substep.
+
+A component that knows where its physics ends declares ``plausible(phi, omega, i, supply_V, p) -> bool``
+(the end stops: the plate is not far beyond a stop; a drive: the coil current is not far beyond what the
+supply can drive). The stepper checks it at the end of every control period and reports False as it
+reports a non-finite state, so a diverging integration raises at its first non-physical state instead of
+returning garbage.
 """
 from __future__ import annotations
 
@@ -31,6 +48,8 @@ import math
 from typing import Any, ClassVar
 
 import numpy as np
+
+from ..jit import kernel
 
 REGISTRY: dict[str, type["Component"]] = {}
 
@@ -85,6 +104,17 @@ def non_negative(owner, obj, *names):
         check(owner, n, v, v >= 0, "a value >= 0")
 
 
+@kernel
+def crossing(phi0, phi1, edge):
+    """The fraction in (0, 1) of the way from phi0 to phi1 at which the angle ``edge`` is crossed (linear in
+    between), or 2.0 if it is not crossed strictly."""
+    a = phi0 - edge
+    b = phi1 - edge
+    if (a < 0.0 and b > 0.0) or (a > 0.0 and b < 0.0):
+        return a / (a - b)
+    return 2.0
+
+
 @dataclasses.dataclass(frozen=True)
 class Params:
     """Base of all parameter dataclasses: finite numbers, validated on construction."""
@@ -125,6 +155,9 @@ class Component:
     kernel: ClassVar[Any] = None      # set as staticmethod(kernel_fn) so instances return the dispatcher
     advance: ClassVar[Any] = None
     carry: ClassVar[Any] = None       # optional carry(phi, omega, i, p): see the module docstring
+    edges: ClassVar[Any] = None       # optional edges(phi0, omega0, phi1, omega1, p) -> theta: see the module docstring
+    plausible: ClassVar[Any] = None   # optional plausible(phi, omega, i, supply_V, p) -> bool: see the module docstring
+    rate: ClassVar[Any] = None        # optional rate(phi, omega, J, p) -> 1/s: see the module docstring
     description: ClassVar[str] = ""
 
     def __init_subclass__(cls, **kw):

@@ -22,6 +22,16 @@ from ..jit import kernel
 from .base import Component, Params, check, positive
 
 
+CURRENT_MARGIN = 4.0   # |i| beyond this many times V_supply/R is not physical (the bridge drives at most
+                       # 2 V/R: full reverse voltage against a back-EMF of at most V at no-load speed)
+
+
+@kernel
+def drive_current_plausible(phi, omega, i, supply_V, p):
+    """The coil current is within what the supply can drive (p[0] is R for every drive)."""
+    return abs(i) <= CURRENT_MARGIN * supply_V / p[0]
+
+
 # --------------------------------------------------------------------------------------------- A
 @dataclasses.dataclass(frozen=True)
 class LinearDriveParams(Params):
@@ -48,6 +58,7 @@ class LinearDrive(Component):
     role = "drive"
     Params = LinearDriveParams
     kernel = staticmethod(linear_drive_kernel)
+    plausible = staticmethod(drive_current_plausible)
     description = "A: linear drive, constant R, L, c_M (sec. 4.1)"
 
     def torque_constant(self, phi):
@@ -212,6 +223,7 @@ class NonlinearInductanceDrive(Component):
     kind = "drive.B"
     role = "drive"
     Params = NonlinearInductanceDriveParams
+    plausible = staticmethod(drive_current_plausible)
     description = "B: nonlinear inductance L = h2(i, phi) (sec. 4.2)"
 
     @property
@@ -292,6 +304,7 @@ class FluxDrive(Component):
     role = "drive"
     Params = FluxDriveParams
     kernel = staticmethod(flux_drive_kernel)
+    plausible = staticmethod(drive_current_plausible)
     description = "C: extended flux model, torque k_C*cos(phi)*i (sec. 4.3, eqs. 13-14)"
 
     def param_vector(self):

@@ -65,10 +65,6 @@ class StribeckFriction(Effect):
     advance = staticmethod(stribeck_friction_advance)
     description = "stiction and Stribeck drop beyond the nominal friction"
 
-    def rest_state(self, s, held_torque_Nm):
-        q = self.params
-        return np.array([np.clip(0.0, -q.stiction_Nm, q.stiction_Nm) / q.bristle_stiffness_Nm_per_rad])
-
 
 # ------------------------------------------------------------------------------------ angle-dependent
 @dataclasses.dataclass(frozen=True)

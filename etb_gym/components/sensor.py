@@ -66,11 +66,6 @@ class PositionSensor:
         noise = rng.normal(0.0, self.params.noise_std_rad) if self.params.noise_std_rad > 0 else 0.0
         return float(self.transform(self._buf[0], noise))
 
-    def read_current(self, current_A: float, rng: np.random.Generator) -> float:
-        p = self.params
-        n = rng.normal(0.0, p.current_noise_std_A) if p.current_noise_std_A > 0 else 0.0
-        return float(_quantize(current_A + n, p.current_resolution_A))
-
     def measure(self, angle_rad: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Readings of a whole sampled trajectory (the first ``delay_steps`` samples repeat the start)."""
         a = np.asarray(angle_rad, float)

@@ -18,7 +18,7 @@ import dataclasses
 import math
 
 from ..jit import kernel
-from .base import Component, Params, non_negative, positive
+from .base import Component, Params, crossing, non_negative, positive
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,9 +50,18 @@ def limp_home_spring_kernel(t, phi, omega, i, u, s, p, ds):
     return -(p[2] * d + p[1] * x + c), 0.0, 0.0
 
 
+@kernel
+def limp_home_spring_edges(phi0, omega0, phi1, omega1, p):
+    """The edges of the limp-home contact band, where its damping c_LH*omega switches on and off."""
+    a = crossing(phi0, phi1, p[0] - p[3])
+    b = crossing(phi0, phi1, p[0] + p[3])
+    return a if a < b else b
+
+
 class LimpHomeSpring(Component):
     kind = "spring.limp_home"
     role = "spring"
     Params = LimpHomeSpringParams
     kernel = staticmethod(limp_home_spring_kernel)
+    edges = staticmethod(limp_home_spring_edges)
     description = "two preloaded return springs meeting at limp-home (eq. 19)"

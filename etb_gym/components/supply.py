@@ -15,6 +15,7 @@ import dataclasses
 from .base import Params, check, positive
 
 PWM_MODES = ("averaged", "switching")
+SUPPLY_RANGE_V = (1.0, 60.0)   # accepted battery voltages: up to a 48 V board net's maximum (docs/model.md sec. 7)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -25,6 +26,8 @@ class SupplyParams(Params):
 
     def validate(self):
         positive("SupplyParams", self, "voltage_V", "pwm_frequency_hz")
+        lo, hi = SUPPLY_RANGE_V
+        check("SupplyParams", "voltage_V", self.voltage_V, lo <= self.voltage_V <= hi, f"a voltage in [{lo}, {hi}] V")
         check("SupplyParams", "pwm_mode", self.pwm_mode, self.pwm_mode in PWM_MODES, f"one of {PWM_MODES}")
 
     @property

@@ -71,7 +71,7 @@ def add_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
                    help="the resolution the model assumes for the angle sensor (default 90/4096 deg)")
     p.add_argument("--substeps", type=_int_at_least(1, "a positive integer"), default=None,
                    help="integrator substeps per sample (default: chosen so the model's own error stays below "
-                        "half the noise floor, 20..160)")
+                        "half the noise floor, 5..80)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, summary only")
     return p
 

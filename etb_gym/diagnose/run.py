@@ -50,15 +50,17 @@ def numerical_tolerance(spec: Spec, x, data: Data) -> None:
         rd.tol_deg = np.where(np.isfinite(d), d, 0.0)
 
 
-SUBSTEP_CHOICES = (20, 40, 80, 160)
+SUBSTEP_CHOICES = (5, 10, 20, 40, 80)
 SUBSTEP_TOL = 0.5    # the model's own integration error must stay below this fraction of the noise floor
+STEPPER_ORDER = 2    # the fixed-rate stepper's order of convergence (docs/model.md sec. 9)
 
 
 def choose_substeps(base: Plant, data: Data, choices=SUBSTEP_CHOICES, frac: float = SUBSTEP_TOL) -> int:
-    """The coarsest integrator step whose own error is well below the noise. The fixed-rate stepper is first
-    order, so the error at n substeps is about twice the RMS difference between n and 2n; the first n of
-    ``choices`` with 2 RMS(y_n - y_2n) < ``frac`` x the noise floor on the recorded input is taken. (A model
-    fitted at too coarse a step has an integration error that looks like missing physics: false alarms.)"""
+    """The coarsest integrator step whose own error is well below the noise. The fixed-rate stepper is of order
+    p = STEPPER_ORDER, so (Richardson) the error at n substeps is about 2^p/(2^p - 1) times the RMS difference
+    between n and 2n (4/3 for p = 2); the first n of ``choices`` whose estimate is below ``frac`` x the noise floor
+    on the recorded input is taken. (A model fitted at too coarse a step has an integration error that looks like
+    missing physics: false alarms.)"""
     spec = Spec(base)
     plant, sensor = spec.build(spec.x0())
     sims = {}                       # each step simulated once: 2n of one try is n of the next
@@ -74,7 +76,8 @@ def choose_substeps(base: Plant, data: Data, choices=SUBSTEP_CHOICES, frac: floa
             continue
         d = np.concatenate([pa[0] - pb[0] for pa, pb in zip(a, b)])
         d = d[np.isfinite(d)]
-        if d.size and 2.0 * math.sqrt(float(np.mean(d ** 2))) < frac * data.noise_deg:
+        richardson = 2.0 ** STEPPER_ORDER / (2.0 ** STEPPER_ORDER - 1.0)
+        if d.size and richardson * math.sqrt(float(np.mean(d ** 2))) < frac * data.noise_deg:
             return n
     return choices[-1]
 
