@@ -180,7 +180,7 @@ def test_task_wrappers_on_gym_make_envs_equal_the_native_vector_env():
     SyncVectorEnv give the same features, rewards and episode ends as the native vector env, bit for bit."""
     from etb_gym.rl.wrappers import make_task_vec_env
 
-    task = TaskConfig(residual="smc", episode_s=0.05)
+    task = TaskConfig(residual="smc-plain", episode_s=0.05)
     a = make_task_vec_env("ETB-3B-v0", 2, task, seed=4, randomize=True)
     b = make_task_vec_env("ETB-3B-v0", 2, task, seed=4, randomize=True, vectorization_mode="sync")
     fa, _ = a.reset()
