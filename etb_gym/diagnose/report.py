@@ -92,7 +92,8 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
         effects.append({"id": c.id, "family": c.family, "description": c.description,
                         "where": _where(t_prev, t_new), "parameters": params,
                         "rms_gain_deg": _rms(prev_res) - _rms(r_new), "delta_bic": st.dbic,
-                        "heldout_gain": st.cv_gain})
+                        "heldout_gain": st.cv_gain,
+                        **({"discrimination": st.discrimination} if getattr(st, "discrimination", None) else {})})
         prev, prev_res = st.fit, r_new
     quant = max(rd.resolution_deg for rd in data.recs)
     if "sensor_quantization" in opts.candidates and quant > QUANT_K * opts.sensor_resolution_deg:

@@ -1,0 +1,103 @@
+"""Tell apart the effects that all act as an angle-dependent torque (docs/diagnosis.md, 3. Explain).
+
+Four catalogue families add a torque that varies with the plate angle, and on a rig whose effect does not
+follow the candidate's formula the formula that fits best may be a neighbour's:
+
+    shaft_flux_loss           i * dk(phi)         proportional to the current (and a back-EMF term)
+    angle_dependent_friction  -g(phi) sign(omega)  opposes the motion, held by the bristles at rest
+    airflow_torque            a(phi)               a function of the opening alone
+    spring_asymmetry          s(phi), one side     a function of the angle alone, on one side of limp-home
+
+What separates them physically is what the torque multiplies: the current, the direction of motion, or
+nothing. So the rivals are compared with their *shape left free*: each family's own regularized lookup table
+in phi (``shapes.family_term``: TorqueConstantMap, AngleFrictionMap, AngleTorqueMap) is fitted on top of the
+current model (calibrated nominal parameters refitted with it, roughness chosen by cross-validation) and
+scored by its held-out angle error over the diagnosis's two folds (``shapes.heldout_error``). A torque
+proportional to the current cannot be made by a friction table, nor an angle-only torque by a current table,
+whatever shape the tables take; only the physics left in the data decides. The family whose table predicts
+the held-out data best is named; airflow and spring asymmetry share one table (both are functions of the
+angle alone), so between those two the formulas' order stands (the spring's support is one side of
+limp-home, the airflow's the whole opening).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from . import fit as F
+from . import shapes as S
+from .model import Data
+
+GROUP = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry")
+SIGNATURE = {"shaft_flux_loss": "proportional to the current",
+             "angle_dependent_friction": "opposes the motion (sign of the speed)",
+             "airflow_torque": "a function of the opening alone",
+             "spring_asymmetry": "a function of the angle alone"}
+MARGIN_SHARE = 0.5    # a rival is close when its screening RSS drop is at least this share of the leader's
+GN_ITER = 2           # Gauss-Newton iterations of each family's table fit
+
+
+def rivals(screened: list, ref_rss: float, leader: str) -> list[str]:
+    """The group members of ``screened`` ((dbic, id, FitResult), ...) whose drop of the screening RSS below
+    ``ref_rss`` is at least MARGIN_SHARE of ``leader``'s, leader first; [] when ``leader`` is not in the group
+    or no second family (by table) is close."""
+    if leader not in GROUP:
+        return []
+    rss = {c: fr.rss for _, c, fr in screened}
+    if leader not in rss:
+        return []
+    lead_drop = ref_rss - rss[leader]
+    if lead_drop <= 0:
+        return []
+    out = [leader] + [c for _, c, fr in screened if c in GROUP and c != leader
+                      and ref_rss - fr.rss >= MARGIN_SHARE * lead_drop]
+    return out if len({_table_kind(c) for c in out}) >= 2 else []
+
+
+def _table_kind(cid: str) -> str:
+    return {"airflow_torque": "angle", "spring_asymmetry": "angle"}.get(cid, cid)
+
+
+def table_heldout(cur: F.FitResult, cid: str, data: Data) -> float:
+    """Held-out mean square angle residual (noise units) of the current model plus ``cid``'s family table
+    (shape free, roughness by cross-validation), nominal parameters refitted with it."""
+    term = S.family_term(cid, cur.spec.base, data)
+    spec_m = cur.spec.with_candidate(term.candidate())
+    pb = S.Problem.make(spec_m, np.concatenate([cur.x, np.zeros(term.n_coef)]), ("nominal", term.id), [term])
+    pf = S.fit_penalized(pb, data, iters=GN_ITER)
+    return S.heldout_error(dataclasses.replace(pb, x=pf.fit.x), data, pf.lams, pf.jac)
+
+
+def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dict:
+    """Compare the rival families ``ids`` (leader first) by their tables' held-out error; returns the
+    evidence: {"rivals", "winner", "heldout_table" {id: error}, "rule", "signature" {id: sentence}}. A family
+    whose table cannot be simulated is left out of the comparison (its reason under "failed")."""
+    scores, failed = {}, {}
+    done: dict = {}
+    for c in ids:
+        k = _table_kind(c)
+        if k in done:                       # airflow and spring share the angle table
+            if done[k] is not None:
+                scores[c] = done[k]
+            continue
+        try:
+            done[k] = scores[c] = float(table_heldout(cur, c, data))
+        except (ValueError, TypeError, FloatingPointError, ZeroDivisionError, OverflowError,
+                np.linalg.LinAlgError) as e:
+            done[k] = None
+            failed[c] = str(e) or type(e).__name__
+    if scores:
+        best = min(scores.values())
+        winner = next(c for c in ids if scores.get(c) == best)   # ties (shared table): the formulas' order
+    else:
+        winner = ids[0]
+    log("  angle-dependent torque rivals " + ", ".join(ids) + ": family tables held-out "
+        + ", ".join(f"{c} {scores[c]:.3g}" if c in scores else f"{c} failed" for c in ids) + f" -> {winner}")
+    ev = {"rivals": [c for c in ids if c != winner], "winner": winner,
+          "heldout_table": scores, "signature": {c: SIGNATURE[c] for c in ids},
+          "rule": "each family's torque table in angle (current-proportional, opposing the motion, or angle only) "
+                  "fitted with its shape free; the lowest held-out angle error names the family"}
+    if failed:
+        ev["failed"] = failed
+    return ev
