@@ -150,22 +150,3 @@ def test_detent_torque_is_reported_outside_the_catalogue_with_its_period(tmp_pat
     assert {"calibrate", "select", "refine", "report"} <= set(st) and all(v >= 0 for v in st.values())
     assert sum(st.values()) <= rep["elapsed_s"] + 5.0
 
-
-def test_jacobian_recomputes_only_the_asked_columns():
-    """shapes.jacobian with J_prev: the columns asked for equal a full Jacobian's, the others are copied."""
-    truth = make_plant("3B", substeps=20)
-    rec = make_recording(truth, np.random.default_rng(3), duration_s=1.5, name="j.csv")
-    data = prepare([rec], 12.0)
-    term = S.MapTerm("t_map", "mechanical", fx.AngleTorqueMap, np.radians(np.linspace(0, 90, 5)), ("torque_Nm",),
-                     0.005, "N m")
-    spec = Spec(make_plant("3B", substeps=20)).with_candidate(term.candidate())
-    x0 = np.concatenate([spec.x0()[:-term.n_coef], np.zeros(term.n_coef)])
-    pb = S.Problem.make(spec, x0, ("nominal", "t_map"), [term])
-    r0 = S._residual(spec, data, x0)
-    full = S.jacobian(pb, data, r0)
-    stale = np.full_like(full, 7.0)
-    cols = {0, pb.free.size - 1}
-    part = S.jacobian(pb, data, r0, J_prev=stale, cols=cols)
-    for j in range(pb.free.size):
-        assert np.array_equal(part[:, j], full[:, j] if j in cols else stale[:, j]), j
-    assert np.any(full[:, -1] != 0.0)

@@ -235,14 +235,11 @@ def _residual(spec, data, x):
     return r
 
 
-def jacobian(pb: Problem, data: Data, r0: np.ndarray, step: float = FD_STEP, J_prev=None, cols=None) -> np.ndarray:
-    """Forward differences of the residual over the free parameters (one simulation each). With ``J_prev``
-    only the columns ``cols`` (indices into the free parameters) are recomputed, the others copied."""
-    J = np.empty((r0.size, pb.free.size)) if J_prev is None else np.array(J_prev, float)
+def jacobian(pb: Problem, data: Data, r0: np.ndarray, step: float = FD_STEP) -> np.ndarray:
+    """Forward differences of the residual over the free parameters (one simulation each)."""
+    J = np.empty((r0.size, pb.free.size))
     lo, hi = pb.spec.bounds()
     for j, k in enumerate(pb.free):
-        if J_prev is not None and j not in cols:
-            continue
         x = pb.x.copy()
         h = step if x[k] + step <= hi[k] else -step
         x[k] += h
@@ -356,14 +353,11 @@ def _coarse(spec: Spec, substeps: int) -> Spec:
 
 
 def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int = GN_ITER, jac_substeps: int = JAC_SUBSTEPS,
-                  log=None, reuse_table_jacobian: bool = False) -> PenalizedFit:
+                  log=None) -> PenalizedFit:
     """Output-error fit of the free parameters with the roughness penalty; the weights by cross-validation
     (re-chosen at every Jacobian; the step is damped (Levenberg) if the plain one does not lower the
     penalized objective). Jacobians are taken at
-    ``jac_substeps`` (the residual itself at the model's own step). ``reuse_table_jacobian``: after the
-    first iteration only the columns of the parameters outside the tables are recomputed; the tables' columns
-    (most of them for fine tables, and nearly constant: the tables enter the torque linearly) are kept from
-    the first Jacobian (a chord step for them; every step must still lower the penalized objective)."""
+    ``jac_substeps`` (the residual itself at the model's own step)."""
     x = _clip(pb, pb.x.copy())
     pb = dataclasses.replace(pb, x=x)
     r = _residual(pb.spec, data, x)
@@ -371,18 +365,9 @@ def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int = GN_ITER, j
     curve = []
     J = None
     coarse = dataclasses.replace(pb, spec=_coarse(pb.spec, jac_substeps))
-    in_table = np.zeros(pb.free.size, bool)
-    for _, ridge in pb.groups:
-        in_table |= ridge > 0
-    others = set(np.flatnonzero(~in_table).tolist())
-    full = 0                         # full Jacobians taken (``iters`` of them at most, as without reuse)
-    need_full = True
-    for it in range(3 * iters):
+    for it in range(iters):
         coarse.x = pb.x
-        reuse = reuse_table_jacobian and J is not None and not need_full
-        J = jacobian(coarse, data, _residual(coarse.spec, data, pb.x), J_prev=J if reuse else None,
-                     cols=others if reuse else None)
-        full += not reuse
+        J = jacobian(coarse, data, _residual(coarse.spec, data, pb.x))
         rel, c = choose_lambdas(J, r, pb, data, grid)      # re-chosen at every linearization
         curve = curve or c
         lams = [a * b for a, b in zip(rel, _penalty_scales(J, pb))]
@@ -401,9 +386,6 @@ def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int = GN_ITER, j
                 improved = True
                 break
         if not improved:
-            if reuse:                # a chord step failed: take a full Jacobian at the same point
-                need_full = True
-                continue
             break
         gain = (obj0 - objn) / max(obj0, 1e-300)
         pb = dataclasses.replace(pb, x=xn)
@@ -411,12 +393,6 @@ def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int = GN_ITER, j
         if log:
             log(f"    penalized fit: iteration {it + 1}, objective {obj0:.4g} -> {objn:.4g}")
         if gain < 0.005:
-            if reuse:                # the chord steps stall: the stopping test is made on a full Jacobian
-                need_full = True
-                continue
-            break
-        need_full = False
-        if full >= iters and not reuse:
             break
     Jfull = np.zeros((r.size, len(pb.x)))
     Jfull[:, pb.free] = J
