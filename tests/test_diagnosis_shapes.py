@@ -146,3 +146,7 @@ def test_detent_torque_is_reported_outside_the_catalogue_with_its_period(tmp_pat
     assert any(e.kind == "effect.angle_torque_map" for e in twin.effects)
     assert rep["rms_after_deg"] < 0.5 * rep["rms_before_deg"]
     assert res.verdict == "unexplained"
+    st = rep["elapsed_breakdown_s"]                  # wall time per stage, the refine stage among them
+    assert {"calibrate", "select", "refine", "report"} <= set(st) and all(v >= 0 for v in st.values())
+    assert sum(st.values()) <= rep["elapsed_s"] + 5.0
+

@@ -126,6 +126,15 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
     bar = tqdm(total=1 + opts.max_effects * (n_fit + 5), disable=not opts.progress, unit="fit", leave=False)
     runner = Runner(data, opts.jobs)
     skipped: list = []
+    stages = {"prepare": time.perf_counter() - t_start}      # wall time per stage [s] (report's elapsed_breakdown_s)
+    t_stage = time.perf_counter()
+
+    def lap(name):
+        nonlocal t_stage
+        now = time.perf_counter()
+        stages[name] = stages.get(name, 0.0) + now - t_stage
+        t_stage = now
+
     try:
         bar.set_description("calibrating the nominal model")
         spec0 = Spec(base)
@@ -138,6 +147,7 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
         bar.update(1)
         numerical_tolerance(spec0, nominal.x, data)
         res0 = angle_residuals_deg(simulate(*spec0.build(nominal.x), data), data)
+        lap("calibrate")
 
         def significant(fr: F.FitResult) -> bool:
             return _significant_residual(data, angle_residuals_deg(simulate(*fr.spec.build(fr.x), data), data))
@@ -148,8 +158,10 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
         if sig0:
             final, steps = select(nominal, data, runner, [c for c in opts.candidates if CANDIDATES[c].fit],
                                   significant, opts.max_effects, bar, log, skipped)
+            lap("select")
             from .refine import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
             final, steps, shaped = refine(nominal, final, steps, data, significant, log=log)
+            lap("refine")
         else:
             final, steps = nominal, []
     finally:
@@ -168,5 +180,10 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
         shaped.attach(result, out)
     if out is not None:
         from .report import write
+        lap("report")
+        result.report["elapsed_breakdown_s"] = stages
         write(result, Path(out))
+    else:
+        lap("report")
+        result.report["elapsed_breakdown_s"] = stages
     return result
