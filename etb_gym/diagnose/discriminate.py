@@ -52,10 +52,10 @@ def rivals(screened: list, ref_rss: float, leader: str) -> list[str]:
         return []
     out = [leader] + [c for _, c, fr in screened if c in GROUP and c != leader
                       and ref_rss - fr.rss >= MARGIN_SHARE * lead_drop]
-    return out if len({_table_kind(c) for c in out}) >= 2 else []
+    return out if len({table_kind(c) for c in out}) >= 2 else []
 
 
-def _table_kind(cid: str) -> str:
+def table_kind(cid: str) -> str:
     return {"airflow_torque": "angle", "spring_asymmetry": "angle"}.get(cid, cid)
 
 
@@ -76,7 +76,7 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
     scores, failed = {}, {}
     done: dict = {}
     for c in ids:
-        k = _table_kind(c)
+        k = table_kind(c)
         if k in done:                       # airflow and spring share the angle table
             if done[k] is not None:
                 scores[c] = done[k]

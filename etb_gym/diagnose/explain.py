@@ -36,6 +36,7 @@ CV_MIN_GAIN = 0.10
 RMS_MIN_GAIN = 0.10
 TOP_K = 3
 SCREEN_NFEV = 12
+RIVAL_CV_SHARE = 0.5     # rivals for the discrimination: formula held-out gain >= this share of the leader's
 SCREEN_SUBSTEPS = 10     # second-order stepper: 10 substeps beat the first-order stepper's 20 (docs/model.md)
 FULL_NFEV = 40
 
@@ -182,12 +183,19 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
             else:
                 gains.append((1.0 - cv / cv0 if cv0 > 0 else 0.0, d, c, fr))
         log("  held-out: " + ", ".join(f"{c} {g:+.0%}" for g, _, c, _ in gains))
+        cv_gain = {c: g for g, _, c, _ in gains}
         gains = [g for g in gains if g[0] >= CV_MIN_GAIN]
         if not gains:
             break
         gains.sort(key=lambda s: -s[0])
         evidence = None
         ids = D.rivals(screened, ref.rss, gains[0][2])
+        # a rival whose own formula was cross-validated and fell far behind the leader's is not close: the
+        # tables only break near-ties the formulas cannot (an angle-only table can mimic a current-scaled
+        # torque when the holding current follows the angle)
+        ids = [c for c in ids if c == gains[0][2] or cv_gain.get(c, gains[0][0]) >= RIVAL_CV_SHARE * gains[0][0]]
+        if len(ids) < 2 or len({D.table_kind(c) for c in ids}) < 2:
+            ids = []
         if ids:                         # angle-dependent torque families close together: compare by physics
             if progress is not None:
                 progress.set_description(f"round {rnd + 1}: telling {len(ids)} angle-dependent torques apart")
