@@ -51,6 +51,7 @@ import math
 
 from .base import BaseController, VelocityEstimator, check_gain, register_controller
 from .model import resolve_model
+from .predictive import StopPredictor
 
 
 def _clip(x: float, lo: float, hi: float) -> float:
@@ -253,7 +254,7 @@ class CascadeController(BaseController):
 class CascadePID(CascadeController):
     """PI position loop commanding the plate speed, along the trajectory generator's reference:
 
-        v_cmd = v_r + K_p e + I / k,    I' = K_i e  within ``integral_zone_deg`` (3x while resting; clamped, frozen while the
+        v_cmd = v_r + K_p e + I / k,    I' = K_i e  within ``integral_zone_deg`` (3x while resting, anywhere once the plate has been stuck for 10 ms; clamped, frozen while the
                                                     voltage saturates: no wind-up)
 
     the derivative action is the inner speed feedback K_v (v_cmd - v_hat) of the velocity-source chain."""
@@ -275,9 +276,12 @@ class CascadePID(CascadeController):
 
     def reset_outer(self) -> None:
         self.I = 0.0
+        self.rest_count = 0
 
     def outer(self, e, y, v, r, v_r, a_r):
-        if abs(e) < self.i_zone * (3.0 if abs(v) < self.rest_speed else 1.0) and not self.moving \
+        self.rest_count = self.rest_count + 1 if abs(v) < self.rest_speed else 0
+        stuck = self.rest_count >= 10           # a plate stuck anywhere for 10 ms (springs, friction): integrate
+        if (abs(e) < self.i_zone * (3.0 if self.rest_count else 1.0) or stuck) and not self.moving \
                 and not getattr(self, "saturated", False):
             self.I = _clip(self.I + self.Ki * self.dt * e, -self.i_lim, self.i_lim)
         return v_r + self.Kp * e + self.I / self.model.torque_constant_Nm_per_A
@@ -337,7 +341,8 @@ class PTOSController(CascadeController):
     def __init__(self, model=None, params: dict | None = None, *, position_gain_rad_s: float = 300.0,
                  velocity_gain_V_s_per_rad: float = 0.014, alpha: float = 0.56, dead_time_s: float = 0.0004,
                  integral_V_per_rad_s: float = 3300.0, integral_zone_deg: float = 1.0, integral_limit_V: float = 3.0,
-                 **kw):
+                 predictive: bool = True, engage_deg: float = 0.3, aim_short_deg: float = 0.0,
+                 relaunch_deg: float = 1.0, **kw):
         own = type(self).__name__
         kw.setdefault("friction_compensation", 1.0)      # full nominal friction level, linear within 0.12 deg
         kw.setdefault("friction_zone_deg", 0.12)
@@ -348,10 +353,42 @@ class PTOSController(CascadeController):
         self.Ki = check_gain(own, "integral_V_per_rad_s", integral_V_per_rad_s, non_negative=True)
         self.i_zone = math.radians(check_gain(own, "integral_zone_deg", integral_zone_deg, positive=True))
         self.i_lim = check_gain(own, "integral_limit_V", integral_limit_V, non_negative=True)
+        self.predictive = bool(predictive)
+        self.engage = math.radians(check_gain(own, "engage_deg", engage_deg, positive=True))
+        self.aim_short = math.radians(check_gain(own, "aim_short_deg", aim_short_deg, non_negative=True))
+        self.relaunch = math.radians(check_gain(own, "relaunch_deg", relaunch_deg, positive=True))
         super().__init__(model, params, **kw)
+        self.predictor = StopPredictor(self.model) if self.predictive and self.model.plant is not None else None
 
     def reset_outer(self) -> None:
         self.I = 0.0
+        self.landing = False
+        self.landed_at = None
+        if getattr(self, "predictor", None) is not None:
+            self.predictor.reset()
+
+    def compute(self, y: float, r_target: float, meas) -> float:
+        duty = super().compute(y, r_target, meas)
+        e = r_target - y
+        if self.predictor is None or meas.current_A is None:
+            return duty
+        m, st = self.model, self.tuning
+        p = self.predictor
+        p.update_levels(st.resistance_ohm, st.friction_level, st.spring_level)
+        p.observe(y, meas.current_A, meas.last_duty, self.V_now)
+        s = 1.0 if e > 0 else -1.0
+        if self.landed_at is not None and abs(r_target - self.landed_at) > 1e-4:
+            self.landed_at = None                   # a new target: a new move
+        far = abs(e) > (self.engage if self.landed_at is None else self.relaunch)
+        if far or (self.landing and s * p.speed > self.rest_speed):
+            i_hold = st.spring_level * m.spring_torque_Nm(r_target) / m.torque_constant_Nm_per_A
+            self.landing = True
+            self.I = 0.0
+            return p.duty_to_land(r_target - s * self.aim_short, s, self.V_now, i_hold, st.resistance_ohm * i_hold)
+        if self.landing:                            # the predicted move has ended: the capture law finishes
+            self.landed_at = r_target
+        self.landing = False
+        return duty
 
     def braking_accel(self, e: float, y: float, V: float) -> float:
         """a_max: deceleration of a motion towards the target (sign of e) once the drive current is gone:

@@ -34,7 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-BOUND_METHOD = "bang-bang/bang-off-bang + third switch + hold, grid then Nelder-Mead (etb_gym.bound v1)"
+BOUND_METHOD = ("bang-bang/bang-off-bang + third switch + hold, grid then Nelder-Mead; model-predictive landing "
+                "input (etb_gym.bound v2)")
 GRID_POINTS = 24
 REFINE_STARTS = 3
 REFINE_EVALS = 400
@@ -220,7 +221,45 @@ def step_bound(plant, a_deg: float, b_deg: float, band_deg: float, horizon_s: fl
         k = settling_index(phi, prob.b, prob.band, tail)
         if k is not None and (best is None or k < best[0]):
             best = (k, duty, phi, th)
+    for pre in PRELOADS:
+        duty = landing_input(prob, pre, n_full)
+        phi = prob.simulate(duty, pre)
+        k = settling_index(phi, prob.b, prob.band, tail)
+        if k is not None and (best is None or k < best[0]):
+            best = (k, duty, phi, (float("nan"),) * 5 + (pre,))
     if best is None:
         return StepBound(float("nan"), duty, phi, tuple(float(x) for x in th), prob.evals)
     k, duty, phi, th = best
     return StepBound(k * dt, duty, phi, tuple(float(x) for x in th), prob.evals)
+
+
+def landing_input(prob: _Problem, preload: float, n: int) -> np.ndarray:
+    """The input of the model-predictive landing law (``etb_gym.controllers.predictive``) run with the exact
+    plant state and parameters (no sensor): each period the duty whose predicted stop lands on b, until the
+    plate stops, then the holding duty. A second candidate family beside the switching-time search (it finds
+    inputs whose switching period carries a fractional duty and whose hold starts at a different level)."""
+    from etb_gym.controllers.model import NominalModel
+    from etb_gym.controllers.predictive import StopPredictor
+
+    plant = prob.plant
+    pred = StopPredictor(NominalModel.from_plant(plant))
+    V = plant.supply.voltage_V
+    b = math.radians(prob.b)
+    i_hold = prob.holding_current(prob.b)[0]
+    hold = prob.hold_duty()
+    x = prob.x0(preload).copy()
+    aux = np.zeros(len(plant.components))
+    step = plant.engine.fns.control_step
+    duty = np.full(n, hold)
+    moved = False
+    for k in range(n):
+        if moved and prob.sign * x[1] <= 0.0:
+            break
+        pred._x0[:] = x
+        d = pred.duty_to_land(b, prob.sign, V, i_hold, hold * V)
+        moved = moved or abs(x[1]) > 0.05
+        duty[k] = d
+        step(x, d, V, plant.P, 0.0, prob.dt, plant.substeps, plant.supply.switching, plant.supply.pwm_frequency_hz,
+             aux)
+        prob.evals += 1
+    return duty

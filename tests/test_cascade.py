@@ -78,17 +78,59 @@ def test_self_tuning_finds_a_hot_coil():
 
 
 def test_cascade_cost_per_step():
-    """Each cascade controller's act() runs inside the 1 ms control period in CPython (the fastest of five
-    repeats: the least disturbed by other processes on a shared machine)."""
-    env = gym.make("ETB-3B-v0", observe_current=True, observe_supply=True)
-    obs, _ = env.reset(seed=0)
+    """Each cascade controller's act() runs inside the 1 ms control period in CPython: CPU time of the calling
+    thread (not disturbed by other processes on a shared machine) over a large step, which for ptos includes
+    the periods of model-predictive switching (the costliest)."""
     for name in CASCADE:
         ctrl = make_controller(name)
+        env = gym.make("ETB-3B-v0", observe_current=True, observe_supply=True,
+                       reference={"name": "step", "initial_deg": 10.0, "final_deg": 80.0, "at_s": 0.02},
+                       episode_s=0.1)
+        obs, _ = env.reset(seed=0, options={"angle_deg": 10.0})
         ctrl.reset(0)
         ts = []
-        for _ in range(5):
-            t0 = time.perf_counter()
-            for _ in range(200):
-                ctrl.act(obs)
-            ts.append((time.perf_counter() - t0) / 200)
-        assert min(ts) < 1e-3, f"{name}: {min(ts) * 1e6:.0f} us per step"
+        for _ in range(100):
+            t0 = time.thread_time()
+            d = ctrl.act(obs)
+            ts.append(time.thread_time() - t0)
+            obs, *_ = env.step(np.array([d], np.float32))
+        assert np.median(ts) < 0.3e-3 and np.percentile(ts, 95) < 1e-3, \
+            f"{name}: median {np.median(ts) * 1e6:.0f} us, 95th percentile {np.percentile(ts, 95) * 1e6:.0f} us"
+
+
+def test_ptos_lands_large_steps_without_overshoot():
+    """The model-predictive switching brakes in time: both 70 deg steps settle within the 1.4 deg band in
+    under 45 ms (the bound: 34 / 18 ms) with less than 2 % overshoot; a 0.5 deg step lands within 0.1 deg."""
+    ctrl = make_controller("ptos")
+    up = run(ctrl, 10.0, 80.0, n=300, at=100)
+    assert np.max(up) < 80.0 + 1.4 and np.all(np.abs(up[145:] - 80.0) < 1.4) and abs(up[-1] - 80.0) < 0.05
+    down = run(ctrl, 80.0, 10.0, n=300, at=100)
+    assert np.min(down) > 10.0 - 1.4 and np.all(np.abs(down[145:] - 10.0) < 1.4) and abs(down[-1] - 10.0) < 0.05
+    small = run(ctrl, 40.0, 40.5, n=200, at=100)
+    assert np.all(np.abs(small[130:] - 40.5) < 0.1)
+
+
+def test_stop_predictor_is_monotone_and_lands():
+    from etb_gym.controllers.predictive import StopPredictor
+
+    m = NominalModel.for_model("3B")
+    p = StopPredictor(m)
+    p.set_state(math.radians(50.0), 25.0, 6.0)              # opening at speed with a full coil
+    stops = [p.stop_angle(d, 1.0, 12.0, 2.0, 2.5) for d in (-1.0, -0.5, 0.0, 0.5, 1.0)]
+    assert all(b >= a for a, b in zip(stops, stops[1:])) and stops[-1] > stops[0]
+    target = 0.5 * (stops[0] + stops[-1])
+    d = p.duty_to_land(target, 1.0, 12.0, 2.0, 2.5)
+    assert -1.0 < d < 1.0
+    assert p.stop_angle(d, 1.0, 12.0, 2.0, 2.5) == pytest.approx(target, abs=math.radians(0.05))
+    assert p.duty_to_land(stops[-1] + 0.1, 1.0, 12.0, 2.0, 2.5) == 1.0       # out of reach: full drive
+    assert p.duty_to_land(stops[0] - 0.1, 1.0, 12.0, 2.0, 2.5) == -1.0      # overshoots anyway: full reverse
+
+
+def test_pid_holds_where_its_springs_differ():
+    """A plate stuck away from the target (springs +20 % hold it 3 deg off at 40 deg) is integrated free:
+    the default pid was unstable in this robustness cell."""
+    from etb_gym.benchmark import SCENARIOS, Job, metrics, simulate
+
+    tr, _ = simulate(Job("ETB-3B-v0", "pid", "small_step_40", "springs_+20", 0))
+    m = metrics(tr, SCENARIOS["small_step_40"])
+    assert m["stable"] and m["steady_state_error_deg"] < 0.1

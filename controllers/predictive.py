@@ -1,0 +1,159 @@
+"""Model-based braking prediction: where does the plate stop if the controller brakes now?
+
+The time-optimal input of a large ETB step (``etb_gym.bound``) is full drive, a short full reverse that
+empties the coil (L = 20 mH: the current cannot fall faster), then the holding voltage; the springs and the
+friction stop the plate. Where to switch depends on all three states (angle, speed, coil current) and on
+the coil's saturating inductance, the angle-dependent torque constant, the springs and the friction. Rather
+than an approximate third-order switching surface, :class:`StopPredictor` integrates **the plant's own
+compiled model** (``Plant.engine.fns.control_step``, the equations the simulator integrates, the same
+substeps) a few control periods ahead from the controller's state estimate, under
+
+    policy B (brake):  d_0 this period, then   d = -s        while s (i - i_hold) > 0   (empty the coil)
+                                               d = u_hold/V  afterwards                  (hold at the target)
+
+with s the direction of the move, V the measured battery voltage, i_hold and u_hold the current and voltage
+holding the plate at the target against the springs, and reports the farthest angle in the direction of the
+move before the plate stops (or turns). The controller picks the duty d_0 of this period whose predicted
+stop lands on the target (a bisection: the predicted stop is monotone in d_0) -- full drive while even full
+drive this period still stops short, a fractional duty in the period that contains the switch, full
+reverse while braking. This is the switching surface of the third-order plant, evaluated numerically.
+
+The model is the controller's nominal plant with the self-tuned coil resistance, friction level and spring
+level (``etb_gym.variants.PlantVariant`` applied to it, rebuilt only when an estimate moved by more than
+2 %), and the battery voltage measured by the ECU.
+
+Cost: one predicted control period is one compiled ``control_step`` (~7 us); a prediction is at most
+``horizon`` periods (stops when the plate stops), a bisection ``iterations`` predictions, done only in
+the periods around the switch.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from etb_gym.variants import COPPER_ALPHA_PER_K, RESISTANCE_REFERENCE_C, PlantVariant
+
+
+class StopPredictor:
+    """Predict the stopping angle of policy B (module docstring) on the controller's nominal plant."""
+
+    REBUILD_TOLERANCE = 0.02
+
+    def __init__(self, model, horizon: int = 12, iterations: int = 5):
+        self.m = model
+        self.plant = model.plant
+        fns = self.plant.engine.fns
+        self._step = fns.control_step
+        self._nsub = self.plant.substeps
+        self._switching = self.plant.supply.switching
+        self._fpwm = self.plant.supply.pwm_frequency_hz
+        self.dt = self.plant.control_period_s
+        self.horizon = int(horizon)
+        self.iterations = int(iterations)
+        self._aux = np.zeros(len(self.plant.components))
+        self._x = self.plant.initial_state(model.limp_home_rad)
+        self._x0 = self._x.copy()
+        self._nominal = self.plant.params_dict()
+        self.names = self.plant.state_names
+        self._z = self.names.index("friction.z_rad") if "friction.z_rad" in self.names else -1
+        fp = self.plant.friction.params if self.plant.friction is not None else None
+        self._sigma0 = float(getattr(fp, "bristle_stiffness_Nm_per_rad", 0.0)) if fp is not None else 0.0
+        self.levels = None
+        self.P = self.plant.P
+        self._xo = None
+        self.stop_angle(0.0, 1.0, self.plant.supply.voltage_V, 0.0, 0.0)     # load the compiled step once, here
+
+    def update_levels(self, resistance_ohm: float, friction_level: float, spring_level: float) -> None:
+        """Rebuild the parameter vector when a self-tuned estimate moved by more than 2 %."""
+        lv = (resistance_ohm / self.m.resistance_ohm, friction_level, spring_level)
+        if self.levels is not None and all(abs(a - b) <= self.REBUILD_TOLERANCE * abs(b)
+                                           for a, b in zip(lv, self.levels)):
+            return
+        self.levels = lv
+        temp = RESISTANCE_REFERENCE_C + (lv[0] - 1.0) / COPPER_ALPHA_PER_K
+        var = PlantVariant(coil_temperature_C=max(temp, -200.0), friction_scale=lv[1], spring_scale=lv[2])
+        self.P = self.plant.param_vector(var.overrides(self._nominal))
+
+    def reset(self) -> None:
+        self._xo = None
+
+    def set_state(self, phi: float, v: float, i: float) -> None:
+        """Start the predictions from this plate state (angle rad, speed rad/s, current A), the LuGre bristles
+        (if any) at their sliding deflection."""
+        x = self._x0
+        x[0], x[1], x[2] = phi, v, i
+        if self._z >= 0 and self._sigma0 > 0:
+            lv = self.levels[1] if self.levels else 1.0
+            x[self._z] = math.copysign(lv * self.m.coulomb_Nm / self._sigma0, v) if abs(v) > 0.05 else 0.0
+
+    def observe(self, y: float, i_m: float, d_prev: float, V: float, gain_angle: float = 0.5,
+                gain_speed: float = 0.25) -> None:
+        """Observer of the plate state on the same model: the previous estimate stepped over the last period
+        with the duty applied, corrected by the sensed angle (gains on the angle innovation: ``gain_angle``
+        on the angle, ``gain_speed``/T on the speed) and the measured current (taken as is)."""
+        xo = self._xo
+        if xo is None:
+            xo = self._xo = self._x0.copy()
+            xo[0], xo[1], xo[2] = y, 0.0, i_m
+            if self._z >= 0:
+                xo[self._z] = 0.0
+        else:
+            self._step(xo, d_prev, V, self.P, 0.0, self.dt, self._nsub, self._switching, self._fpwm, self._aux)
+            eps = y - xo[0]
+            xo[0] += gain_angle * eps
+            xo[1] += gain_speed * eps / self.dt
+            xo[2] = i_m
+        self._x0[:] = xo
+
+    @property
+    def speed(self) -> float:
+        return float(self._x0[1])
+
+    def stop_angle(self, d0: float, s: float, V: float, i_hold: float, u_hold: float) -> float:
+        """Farthest angle (rad) in direction s before the plate stops, under policy B from the set state."""
+        x = self._x
+        x[:] = self._x0
+        step, P, aux = self._step, self.P, self._aux
+        far = x[0]
+        d = d0
+        hold = max(-1.0, min(1.0, u_hold / V))
+        for k in range(self.horizon):
+            step(x, d, V, P, 0.0, self.dt, self._nsub, self._switching, self._fpwm, aux)
+            if s * (x[0] - far) > 0:
+                far = x[0]
+            if s * x[1] <= 0.0:
+                break
+            d = -s if s * (x[2] - i_hold) > 0 else hold
+        return far
+
+    def duty_to_land(self, target: float, s: float, V: float, i_hold: float, u_hold: float,
+                     tolerance: float = 2e-4) -> float:
+        """The duty of this period whose predicted stop lands on ``target`` (within ``tolerance`` rad; full
+        drive or full reverse when none does): regula falsi (Illinois) on the predicted stop, which is monotone
+        in the duty, at most ``iterations`` predictions after the two ends."""
+        f_hi = s * (self.stop_angle(s, s, V, i_hold, u_hold) - target)
+        if f_hi <= 0:
+            return s
+        f_lo = s * (self.stop_angle(-s, s, V, i_hold, u_hold) - target)
+        if f_lo >= 0:
+            return -s
+        lo, hi = -1.0, 1.0                     # in units of s: lo lands short (f < 0), hi overshoots (f > 0)
+        side = 0
+        d = lo
+        for _ in range(self.iterations):
+            d = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+            f = s * (self.stop_angle(s * d, s, V, i_hold, u_hold) - target)
+            if abs(f) < tolerance:
+                break
+            if f > 0:
+                hi, f_hi = d, f
+                if side == 1:
+                    f_lo *= 0.5
+                side = 1
+            else:
+                lo, f_lo = d, f
+                if side == -1:
+                    f_hi *= 0.5
+                side = -1
+        return s * d

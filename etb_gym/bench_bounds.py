@@ -1,0 +1,105 @@
+"""The physical bound of every (env, step scenario, variant) for the benchmark: computed with etb_gym.bound,
+cached in process and on disk (bounds.json) under a fingerprint of everything it depends on."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Mapping
+
+from etb_gym.bench_scenarios import SCENARIOS, TAIL_S, VARIANTS, model_of, step_band_deg
+
+from .io import write_atomic
+
+@dataclass(frozen=True)
+class BoundJob:
+    """The physical bound of one step scenario on one plant variant (etb_gym.bound)."""
+
+    env_id: str
+    scenario: str
+    variant: str
+
+    @property
+    def key(self) -> str:
+        return f"{self.env_id}|{self.scenario}|{self.variant}"
+
+
+def bound_plant(env_id: str, variant: str):
+    """The plant a variant's env steps (parameters and battery; the sensor does not matter to the bound)."""
+    from etb_gym.plant import make_plant
+
+    return VARIANTS[variant].plant.apply(make_plant(model_of(env_id)))
+
+
+def bound_fingerprint(job: BoundJob) -> str:
+    """What the bound depends on: the plant's parameters and supply, the step, the band, the horizon and the
+    search method. A cached bound is reused only for the same fingerprint."""
+    import hashlib
+    import json
+
+    from etb_gym.bound import BOUND_METHOD
+
+    p = bound_plant(job.env_id, job.variant)
+    sc = SCENARIOS[job.scenario]
+    spec = {"plant": sorted((k, repr(v)) for k, v in p.params_dict().items()), "model": p.model,
+            "supply_V": p.supply.voltage_V, "dt": p.control_period_s, "substeps": p.substeps,
+            "step": [sc.step_from_deg, sc.step_to_deg, step_band_deg(sc), sc.duration_s - sc.step_at_s, TAIL_S],
+            "method": BOUND_METHOD}
+    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
+
+
+_BOUNDS: dict = {}
+
+
+def compute_bound(job: BoundJob) -> dict:
+    """The bound of one (env, step scenario, variant), cached in process by fingerprint. Returns a JSON-ready
+    dict: bound_s (NaN if the search found no settling input), the duty and true angle from the step on."""
+    from etb_gym.bound import step_bound
+
+    fp = bound_fingerprint(job)
+    hit = _BOUNDS.get(fp)
+    if hit is not None:
+        return hit
+    sc = SCENARIOS[job.scenario]
+    b = step_bound(bound_plant(job.env_id, job.variant), sc.step_from_deg, sc.step_to_deg, step_band_deg(sc),
+                   sc.duration_s - sc.step_at_s, TAIL_S)
+    out = {"fingerprint": fp, "bound_s": b.settling_time_s, "method": b.method, "params": list(b.params),
+           "evaluations": b.evaluations, "duty": [round(float(x), 6) for x in b.duty],
+           "angle_deg": [round(float(x), 5) for x in b.angle_deg]}
+    _BOUNDS[fp] = out
+    return out
+
+
+def read_bounds(path) -> dict:
+    import json
+
+    p = Path(path)
+    if not p.exists():
+        return {}
+    try:
+        d = json.loads(p.read_text())
+    except ValueError:
+        return {}              # a damaged cache is recomputed, never trusted
+    return d if isinstance(d, dict) else {}
+
+
+def write_bounds(path, bounds: Mapping) -> None:
+    import json
+
+    write_atomic(Path(path), json.dumps(bounds, allow_nan=True))
+
+
+def attach_bound(row: dict, bounds: Mapping) -> dict:
+    """Fill a row's bound_s and settling_ratio (= settling_time_s / bound_s) from the bounds."""
+    b = bounds.get(BoundJob(row["env"], row["scenario"], row["variant"]).key)
+    bs = float(b["bound_s"]) if b is not None and b.get("bound_s") is not None else float("nan")
+    row["bound_s"] = bs
+    st = row.get("settling_time_s", float("nan"))
+    row["settling_ratio"] = st / bs if bs > 0 and not math.isnan(st) else float("nan")
+    return row
+
+
+def bound_jobs(jobs: Iterable) -> list[BoundJob]:
+    """The bound jobs of the step scenarios among ``jobs`` (benchmark Jobs), each (env, scenario, variant) once."""
+    return list(dict.fromkeys(BoundJob(j.env_id, j.scenario, j.variant) for j in jobs
+                              if SCENARIOS[j.scenario].kind == "step"))
