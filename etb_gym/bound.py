@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 BOUND_METHOD = ("bang-bang/bang-off-bang + third switch + hold, grid then Nelder-Mead; model-predictive landing "
-                "input (etb_gym.bound v2)")
+                "law to the end (etb_gym.bound v3)")
 GRID_POINTS = 24
 REFINE_STARTS = 3
 REFINE_EVALS = 400
@@ -235,8 +235,8 @@ def step_bound(plant, a_deg: float, b_deg: float, band_deg: float, horizon_s: fl
 
 def landing_input(prob: _Problem, preload: float, n: int) -> np.ndarray:
     """The input of the model-predictive landing law (``etb_gym.controllers.predictive``) run with the exact
-    plant state and parameters (no sensor): each period the duty whose predicted stop lands on b, until the
-    plate stops, then the holding duty. A second candidate family beside the switching-time search (it finds
+    plant state and parameters (no sensor): each period the duty whose predicted stop lands on b, to the
+    end of the scenario (after the landing it holds the plate at b). A second candidate family beside the switching-time search (it finds
     inputs whose switching period carries a fractional duty and whose hold starts at a different level)."""
     from etb_gym.controllers.model import NominalModel
     from etb_gym.controllers.predictive import StopPredictor
@@ -251,13 +251,12 @@ def landing_input(prob: _Problem, preload: float, n: int) -> np.ndarray:
     aux = np.zeros(len(plant.components))
     step = plant.engine.fns.control_step
     duty = np.full(n, hold)
-    moved = False
+    s = prob.sign
     for k in range(n):
-        if moved and prob.sign * x[1] <= 0.0:
-            break
+        if abs(b - x[0]) > 1e-6:
+            s = 1.0 if b > x[0] else -1.0          # after landing the same law holds the plate at b
         pred._x0[:] = x
-        d = pred.duty_to_land(b, prob.sign, V, i_hold, hold * V)
-        moved = moved or abs(x[1]) > 0.05
+        d = pred.duty_to_land(b, s, V, i_hold, hold * V)
         duty[k] = d
         step(x, d, V, plant.P, 0.0, prob.dt, plant.substeps, plant.supply.switching, plant.supply.pwm_frequency_hz,
              aux)
