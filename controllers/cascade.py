@@ -22,10 +22,12 @@ outer laws command a plate speed, the coil being a velocity source while the pla
 * ``smc`` (:class:`CascadeSMC`): v_cmd = v_r + K sat((lambda e + k_0 sigma)/Phi) with the conditional
   integrator sigma' = -k_0 sigma + Phi sat(...) of Seshagiri & Khalil (2005): zero steady-state error
   without wind-up;
-* ``ptos`` (:class:`PTOSController`): the proximate time-optimal servo of Workman (1987) (Franklin, Powell
-  & Workman, Digital Control of Dynamic Systems, 3rd ed., sec. 14.4), its switching curve written for a
-  velocity source with a dead time: v_cmd = sgn(e) min(K_p |e|, sqrt((a t_d)^2 + 2 a |e|) - a t_d), a the
-  braking deceleration (friction and the spring when it pulls back) times alpha.
+* ``ptos`` (:class:`PTOSController`): beyond 0.3 deg from the target, model-predictive time-optimal
+  switching (:mod:`.predictive`: each period the duty whose predicted stop, on the plant's own compiled
+  model from an observer's state, lands on the target); near it, the proximate time-optimal servo of Workman
+  (1987) (Franklin, Powell & Workman, Digital Control of Dynamic Systems, 3rd ed., sec. 14.4), its switching
+  curve written for a velocity source with a dead time: v_cmd = sgn(e) min(K_p |e|, sqrt((a t_d)^2 + 2 a |e|)
+  - a t_d), a the braking deceleration (friction and the spring when it pulls back) times alpha.
 
 ``pid`` and ``smc`` follow a reference trajectory generator (:class:`TrajectoryGenerator`: time-optimal
 rate/acceleration-limited profile, the speed limit from the measured battery: the back-EMF caps the
@@ -41,9 +43,9 @@ boxes, so no estimate can wind up:
   slides, k i - J a - sigma2 v = theta_s T_spring(phi) + theta_f T_c sgn(v): normalized LMS, theta_f in
   [0.3, 2.0], theta_s in [0.6, 1.5].
 
-Cost per act(): 46 us (ptos), 64 us (pid), 53 us (smc) in CPython on the shared 2-core machine (median of 7 x
-500 calls, load ~10; ``tests/test_cascade.py::test_cascade_cost_per_step`` checks the 1 ms bound), far inside the
-1 ms control period.
+Cost per act() (CPython, thread CPU time over four steps, load ~11 on the shared 2-core machine): ptos median
+36 us, worst 455 us (the periods around the switch), pid 25 us, smc 25 us;
+``tests/test_cascade.py::test_cascade_cost_per_step`` checks the 1 ms control period.
 """
 from __future__ import annotations
 
@@ -324,7 +326,9 @@ class CascadeSMC(CascadeController):
 
 
 class PTOSController(CascadeController):
-    """Proximate time-optimal servo on the coil as a velocity source (module docstring).
+    """Model-predictive time-optimal switching (:class:`.predictive.StopPredictor`) beyond ``engage_deg`` from
+    the target, then the proximate time-optimal servo below as the capture law (until the error exceeds
+    ``relaunch_deg`` again or the reference moves). The capture law, on the coil as a velocity source:
 
     The speed command follows the braking curve of a plate that decelerates at ``alpha`` a_max after a dead
     time t_d (the current's fall and one control period), capped by the battery's speed limit, and a linear
