@@ -125,6 +125,12 @@ def _base_and_data(opts: Options, recs: list) -> tuple[Plant, Data]:
 
 def diagnose(recordings, model: str = "3B", out=None, options: Options | None = None, **kw) -> "Result":
     """Diagnose ``recordings`` (paths or :class:`Recording`) against ``model``; write the report to ``out``."""
+    from .threads import one_blas_thread
+    with one_blas_thread():                 # small linear algebra, parallel fits: threads only contend
+        return _diagnose(recordings, model, out, options, kw)
+
+
+def _diagnose(recordings, model, out, options, kw) -> "Result":
     t_start = time.perf_counter()
     opts = _setup(model, options, kw)
     if out is not None:
