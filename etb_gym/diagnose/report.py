@@ -385,7 +385,7 @@ def write(result, out: Path) -> None:
     stages = result.report.get("elapsed_breakdown_s")
     if isinstance(stages, dict):                 # the figures' wall time too (the report's json comes after)
         stages["figures"] = time.perf_counter() - t0
-        result.report["elapsed_s"] = result.report.get("elapsed_s", 0.0) + stages["figures"]
+        result.elapsed_s = result.report["elapsed_s"] = result.report.get("elapsed_s", 0.0) + stages["figures"]
     save_plant(result.plant, out / "calibrated_plant.toml")
     _atomic_text(out / "report.json", json.dumps(_json_safe(result.report), indent=2) + "\n")
     _atomic_text(out / "report.md", markdown(result, figures))

@@ -207,6 +207,7 @@ def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skippe
         shaped.attach(result, out)
     lap("report")
     result.report["elapsed_breakdown_s"] = stages
+    result.elapsed_s = result.report["elapsed_s"] = time.perf_counter() - t_start   # the stages' sum so far
     if out is not None:
         from .report import write
         write(result, Path(out))
