@@ -117,6 +117,124 @@ def extend(x_old: np.ndarray, spec: Spec) -> np.ndarray:
     return np.concatenate([x_old, np.zeros(len(spec.params) - len(x_old))])
 
 
+@dataclasses.dataclass
+class _Ctx:
+    """What every round of :func:`select` shares."""
+
+    data: Data
+    runner: Runner
+    base: Plant
+    base_dict: dict
+    nominal: tuple
+    progress: object
+    log: object
+    skip: object                      # skip(candidate id, round index, reason)
+
+    def describe(self, text):
+        if self.progress is not None:
+            self.progress.set_description(text)
+
+
+def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
+    """Step 1: every remaining candidate added and refitted at SCREEN_SUBSTEPS (the current model refitted there
+    too). Returns (the current model's refit, [(dBIC, id, FitResult)] best first), or None when the current
+    model cannot be refitted at the screening step."""
+    active = tuple(c.id for c in cur.spec.candidates)
+    screen_dict = dict(ctx.base_dict, substeps=min(SCREEN_SUBSTEPS, ctx.base.substeps))
+    tasks = [("fit", screen_dict, ctx.nominal, active, cur.x, SCREEN_NFEV)]
+    for c in remaining:
+        spec = cur.spec.with_candidate(CANDIDATES[c])
+        tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), extend(cur.x, spec), SCREEN_NFEV))
+    ctx.describe(f"round {rnd + 1}: screening {len(tasks) - 1} candidates")
+    res = ctx.runner.map(tasks, ctx.progress)
+    if isinstance(res[0], Skipped):         # the current model failed at the screening step: stop here
+        ctx.log(f"  the current model cannot be refitted at {SCREEN_SUBSTEPS} substeps ({res[0]}): selection stops")
+        return None
+    ref = F.FitResult(cur.spec, *res[0])
+    screened = []
+    for c, r in zip(remaining, res[1:]):
+        if isinstance(r, Skipped):
+            ctx.skip(c, rnd, r)
+            continue
+        spec = cur.spec.with_candidate(CANDIDATES[c])
+        fr = F.FitResult(spec, *r)
+        screened.append((dbic(fr, ref), c, fr))
+    screened.sort(key=lambda s: s[0])
+    ctx.log("  screening: " + ", ".join(f"{c} dBIC {d:+.0f}" for d, c, _ in screened[:5]))
+    return ref, screened
+
+
+def _validate(ctx: _Ctx, cur: F.FitResult, top: list, rnd: int):
+    """Step 2: the current model and the ``top`` screened candidates cross-validated. Returns (the current
+    model's held-out error, [(held-out gain, dBIC, id, FitResult)] of those that could be simulated), or None
+    when the current model cannot be cross-validated."""
+    active = tuple(c.id for c in cur.spec.candidates)
+    ctx.describe(f"round {rnd + 1}: cross-validating {len(top)} + current")
+    cv_tasks = [("cv", ctx.base_dict, ctx.nominal, active, cur.x, SCREEN_NFEV)]
+    cv_tasks += [("cv", ctx.base_dict, ctx.nominal, active + (c,), fr.x, SCREEN_NFEV) for _, c, fr in top]
+    cvs = ctx.runner.map(cv_tasks, ctx.progress)
+    cv0 = cvs[0]
+    if isinstance(cv0, Skipped):
+        ctx.log(f"  the current model cannot be cross-validated ({cv0}): selection stops")
+        return None
+    gains = []
+    for cv, (d, c, fr) in zip(cvs[1:], top):
+        if isinstance(cv, Skipped):
+            ctx.skip(c, rnd, cv)
+        else:
+            gains.append((1.0 - cv / cv0 if cv0 > 0 else 0.0, d, c, fr))
+    ctx.log("  held-out: " + ", ".join(f"{c} {g:+.0%}" for g, _, c, _ in gains))
+    return cv0, gains
+
+
+def _tell_apart(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv_gain: dict,
+                cv0: float, rnd: int):
+    """Step 2b: when angle-dependent torque families are close, compare them by physics (discriminate.py);
+    returns the evidence (None when no rivals are close) and reorders ``gains`` (the physics' choice first)."""
+    ids = D.rivals(screened, ref.rss, gains[0][2])
+    # a rival whose own formula was cross-validated and fell far behind the leader's is not close: the
+    # tables only break near-ties the formulas cannot (an angle-only table can mimic a current-scaled
+    # torque when the holding current follows the angle)
+    ids = [c for c in ids if c == gains[0][2] or cv_gain.get(c, gains[0][0]) >= RIVAL_CV_SHARE * gains[0][0]]
+    if len(ids) < 2 or len({D.table_kind(c) for c in ids}) < 2:
+        return None
+    active = tuple(c.id for c in cur.spec.candidates)
+    ctx.describe(f"round {rnd + 1}: telling {len(ids)} angle-dependent torques apart")
+    evidence = D.discriminate(cur, ctx.data, ids, ctx.log)
+    w = evidence["winner"]
+    if w not in [c for _, _, c, _ in gains]:
+        fr_w = next(fr for _, c, fr in screened if c == w)
+        cv = ctx.runner.map([("cv", ctx.base_dict, ctx.nominal, active + (w,), fr_w.x, SCREEN_NFEV)])[0]
+        if not isinstance(cv, Skipped):
+            gains.append((1.0 - cv / cv0 if cv0 > 0 else 0.0, dbic(fr_w, ref), w, fr_w))
+    gains.sort(key=lambda s: (s[2] != w, -s[0]))             # the physics' choice first
+    return evidence
+
+
+def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int):
+    """Step 3: the best candidate whose full fit simulates and lowers the angle RMS by RMS_MIN_GAIN.
+    Returns (its id, held-out gain, full fit), or None."""
+    active = tuple(c.id for c in cur.spec.candidates)
+    full = None
+    for g, d, c, fr in gains:
+        r = ctx.runner.map([("fit", ctx.base_dict, ctx.nominal, active + (c,), fr.x, FULL_NFEV)])[0]
+        if isinstance(r, Skipped):
+            ctx.skip(c, rnd, r)
+            continue
+        full = F.FitResult(fr.spec, *r)
+        ratio = angle_rms_ratio(full, cur, ctx.data)
+        if ratio > 1.0 - RMS_MIN_GAIN:
+            ctx.log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f}): "
+                    "not accepted")
+            if evidence is not None and c == evidence["winner"]:     # its formula falls short: the next
+                full = None
+                continue
+        break
+    if full is None or ratio > 1.0 - RMS_MIN_GAIN:
+        return None
+    return c, g, full
+
+
 def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, significant, max_effects: int = 3,
            progress=None, log=print, skipped: list | None = None) -> tuple[F.FitResult, list]:
     """Greedy forward selection of effects; returns the final fit and the accepted steps in order.
@@ -131,9 +249,7 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         skipped.append({"id": c, "round": rnd + 1, "reason": str(why)})
         log(f"  {c}: skipped ({why})")
 
-    base = cur.spec.base
-    base_dict = base.to_dict()
-    nominal = cur.spec.nominal
+    ctx = _Ctx(data, runner, cur.spec.base, cur.spec.base.to_dict(), cur.spec.nominal, progress, log, skip)
     for rnd in range(max_effects):
         if not significant(cur):
             break
@@ -141,88 +257,27 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         remaining = [c for c in candidate_ids if c not in active and c not in dropped and CANDIDATES[c].fit]
         if not remaining:
             break
-        screen_dict = dict(base_dict, substeps=min(SCREEN_SUBSTEPS, base.substeps))
-        tasks = [("fit", screen_dict, nominal, active, cur.x, SCREEN_NFEV)]
-        for c in remaining:
-            spec = cur.spec.with_candidate(CANDIDATES[c])
-            tasks.append(("fit", screen_dict, nominal, active + (c,), extend(cur.x, spec), SCREEN_NFEV))
-        if progress is not None:
-            progress.set_description(f"round {rnd + 1}: screening {len(tasks) - 1} candidates")
-        res = runner.map(tasks, progress)
-        if isinstance(res[0], Skipped):         # the current model failed at the screening step: stop here
-            log(f"  the current model cannot be refitted at {SCREEN_SUBSTEPS} substeps ({res[0]}): selection stops")
+        screen = _screen(ctx, cur, remaining, rnd)
+        if screen is None:
             break
-        ref = F.FitResult(cur.spec, *res[0])
-        screened = []
-        for c, r in zip(remaining, res[1:]):
-            if isinstance(r, Skipped):
-                skip(c, rnd, r)
-                continue
-            x, rss, m, jac, nfev, tau, bs = r
-            spec = cur.spec.with_candidate(CANDIDATES[c])
-            fr = F.FitResult(spec, x, rss, m, jac, nfev, tau, bs)
-            screened.append((dbic(fr, ref), c, fr))
-        screened.sort(key=lambda s: s[0])
-        log("  screening: " + ", ".join(f"{c} dBIC {d:+.0f}" for d, c, _ in screened[:5]))
+        ref, screened = screen
         top = [s for s in screened[:TOP_K] if s[0] < -BIC_MIN]
         if not top:
             break
-        if progress is not None:
-            progress.set_description(f"round {rnd + 1}: cross-validating {len(top)} + current")
-        cv_tasks = [("cv", base_dict, nominal, active, cur.x, SCREEN_NFEV)]
-        cv_tasks += [("cv", base_dict, nominal, active + (c,), fr.x, SCREEN_NFEV) for _, c, fr in top]
-        cvs = runner.map(cv_tasks, progress)
-        cv0 = cvs[0]
-        if isinstance(cv0, Skipped):
-            log(f"  the current model cannot be cross-validated ({cv0}): selection stops")
+        val = _validate(ctx, cur, top, rnd)
+        if val is None:
             break
-        gains = []
-        for cv, (d, c, fr) in zip(cvs[1:], top):
-            if isinstance(cv, Skipped):
-                skip(c, rnd, cv)
-            else:
-                gains.append((1.0 - cv / cv0 if cv0 > 0 else 0.0, d, c, fr))
-        log("  held-out: " + ", ".join(f"{c} {g:+.0%}" for g, _, c, _ in gains))
+        cv0, gains = val
         cv_gain = {c: g for g, _, c, _ in gains}
         gains = [g for g in gains if g[0] >= CV_MIN_GAIN]
         if not gains:
             break
         gains.sort(key=lambda s: -s[0])
-        evidence = None
-        ids = D.rivals(screened, ref.rss, gains[0][2])
-        # a rival whose own formula was cross-validated and fell far behind the leader's is not close: the
-        # tables only break near-ties the formulas cannot (an angle-only table can mimic a current-scaled
-        # torque when the holding current follows the angle)
-        ids = [c for c in ids if c == gains[0][2] or cv_gain.get(c, gains[0][0]) >= RIVAL_CV_SHARE * gains[0][0]]
-        if len(ids) < 2 or len({D.table_kind(c) for c in ids}) < 2:
-            ids = []
-        if ids:                         # angle-dependent torque families close together: compare by physics
-            if progress is not None:
-                progress.set_description(f"round {rnd + 1}: telling {len(ids)} angle-dependent torques apart")
-            evidence = D.discriminate(cur, data, ids, log)
-            w = evidence["winner"]
-            if w not in [c for _, _, c, _ in gains]:
-                fr_w = next(fr for _, c, fr in screened if c == w)
-                cv = runner.map([("cv", base_dict, nominal, active + (w,), fr_w.x, SCREEN_NFEV)])[0]
-                if not isinstance(cv, Skipped):
-                    gains.append((1.0 - cv / cv0 if cv0 > 0 else 0.0, dbic(fr_w, ref), w, fr_w))
-            gains.sort(key=lambda s: (s[2] != w, -s[0]))             # the physics' choice first
-        full = None
-        for g, d, c, fr in gains:                                    # the best whose full fit simulates
-            r = runner.map([("fit", base_dict, nominal, active + (c,), fr.x, FULL_NFEV)])[0]
-            if isinstance(r, Skipped):
-                skip(c, rnd, r)
-                continue
-            full = F.FitResult(fr.spec, *r)
-            ratio = angle_rms_ratio(full, cur, data)
-            if ratio > 1.0 - RMS_MIN_GAIN:
-                log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f}): not accepted")
-                if evidence is not None and c == evidence["winner"]:     # its formula falls short: the next
-                    full = None
-                    continue
+        evidence = _tell_apart(ctx, cur, ref, screened, gains, cv_gain, cv0, rnd)
+        acc = _accept(ctx, cur, gains, evidence, rnd)
+        if acc is None:
             break
-        if full is None or ratio > 1.0 - RMS_MIN_GAIN:
-            break
+        c, g, full = acc
         if evidence is not None and evidence["winner"] != c:
             evidence = dict(evidence, note=f"the formula of {evidence['winner']} did not pass the fit on all the "
                                            f"data; {c} taken")

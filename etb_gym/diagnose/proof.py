@@ -40,121 +40,16 @@ from pathlib import Path
 
 import numpy as np
 
-import dataclasses
-
-from ..components import effects as fx
-from ..components.base import Component, Params
 from ..io import write_atomic
-from ..jit import kernel
-from ..plant import make_plant
 from ..plantfile import load_plant, save_plant
 from ..recordings import save_recording
 from .locate import moving_rms
-from .measurement import SensorModel
 from .model import angle_residuals_deg, prepare, simulate
+from .proof_tables import DETECTABLE, loop_table, pair_table, summarize, table, targets  # noqa: F401
+from .proof_truth import (FAMILIES, PAIRS, QUICK, AirflowMap, effect_footprint, pair_footprints,  # noqa: F401
+                          sensor_model, truth_for, truth_plant)
 from .run import Options, diagnose
-from .synthetic import make_recording, nameplate_file_plant, random_nameplate
-
-
-# ---------------------------------------------------------------- a truth that is not the candidate's equation
-@dataclasses.dataclass(frozen=True)
-class AirflowMapParams(Params):
-    peak_Nm: float = -0.05          # smooth aerodynamic map: peak closing torque near 55 deg
-    peak_angle_rad: float = math.radians(55.0)
-    width_rad: float = math.radians(25.0)
-
-
-@kernel
-def airflow_map_kernel(t, phi, omega, i, u, s, p, ds):
-    x = (phi - p[1]) / p[2]
-    return p[0] * math.exp(-0.5 * x * x) * (1.0 - math.exp(-8.0 * max(phi, 0.0))), 0.0, 0.0
-
-
-class AirflowMap(Component):
-    kind = "truth.airflow_map"
-    role = "effect"
-    Params = AirflowMapParams
-    kernel = staticmethod(airflow_map_kernel)
-
-
-def loguniform(rng, lo, hi):
-    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
-
-
-def sign(rng):
-    return 1.0 if rng.random() < 0.5 else -1.0
-
-
-# family -> (effects or sensor kwargs, main parameter name in the report, true value of it)
-def truth_for(family: str, rng, scale: float):
-    """``scale`` in [0, 1]: 1 large, 0 near the detection limit (log-uniform in between)."""
-    m = lambda lo, hi: lo * (hi / lo) ** scale
-    if family == "clean":
-        return [], {}, None, None
-    if family == "shaft_flux_loss":
-        k = m(0.004, 0.04)
-        return [fx.ShaftFluxLoss(loss_at_open_Nm_per_A=k, exponent=rng.uniform(2.0, 4.0))], {}, "loss_at_open_Nm_per_A", k
-    if family == "coil_heating":
-        c = m(60.0, 4.0)
-        return [fx.CoilHeating(heat_capacity_J_per_K=c, thermal_resistance_K_per_W=8.0)], {}, "heat_capacity_J_per_K", c
-    if family == "spring_asymmetry":
-        d = m(0.01, 0.08) * sign(rng)
-        return [fx.SpringAsymmetry(closing_preload_delta_Nm=d)], {}, "closing_preload_delta_Nm", d
-    if family == "airflow_torque":
-        a = -m(0.01, 0.12)
-        return [AirflowMap(peak_Nm=a)], {}, None, None
-    if family == "stribeck_friction":
-        s = m(0.01, 0.08)
-        return [fx.StribeckFriction(stiction_Nm=s, stribeck_velocity_rad_s=0.03)], {}, "stiction_Nm", s
-    if family == "sensor_offset_gain":
-        o = m(0.04, 1.0) * sign(rng)
-        return [], {"offset_deg": o, "gain": 1.0 + m(0.001, 0.02) * sign(rng)}, "offset_deg", o
-    if family == "torque_constant_error":
-        d = m(0.002, 0.015) * sign(rng)
-        return [fx.TorqueConstantError(delta_Nm_per_A=d)], {}, "delta_Nm_per_A", d
-    if family == "supply_drop":
-        v = m(0.05, 0.6)
-        return [fx.SupplyDrop(forward_drop_V=v)], {}, "forward_drop_V", v
-    if family == "backlash":
-        b = m(0.002, 0.02)
-        return [fx.Backlash(play_rad=b)], {}, "play_rad", b
-    if family == "angle_dependent_friction":
-        a = m(0.01, 0.08) * sign(rng)
-        return [fx.AngleDependentFriction(slope_Nm=a)], {}, "slope_Nm", a
-    if family == "inductance_saturation":
-        dl = m(0.0008, 0.0045)
-        return [fx.InductanceSaturation(inductance_drop_H=dl, saturation_current_A=rng.uniform(1.0, 3.0))], {}, \
-            "inductance_drop_H", dl
-    if family == "end_stop_compliance":
-        o = math.radians(90.0 - m(0.3, 4.0))                   # the open stop sits earlier than drawn
-        return [fx.EndStopCompliance(open_rad=o, stiffness_Nm_per_rad=rng.uniform(300.0, 3000.0))], {}, "open_rad", o
-    if family == "sensor_quantization":
-        bits = int(rng.integers(8, 11))                        # 8..10 bits instead of the assumed 12
-        return [], {"resolution_deg": 90.0 / 2 ** bits}, "resolution_deg", 90.0 / 2 ** bits
-    if family == "sensor_delay":
-        k = int(round(m(1.0, 6.0)))
-        return [], {"delay_steps": k}, "delay_s", k * 1e-3
-    raise ValueError(family)
-
-
-FAMILIES = ["clean", "shaft_flux_loss", "coil_heating", "spring_asymmetry", "airflow_torque", "stribeck_friction",
-            "sensor_offset_gain", "torque_constant_error", "supply_drop", "backlash", "angle_dependent_friction",
-            "sensor_delay", "inductance_saturation", "end_stop_compliance", "sensor_quantization"]
-QUICK = ["clean", "shaft_flux_loss", "sensor_offset_gain", "spring_asymmetry"]
-
-
-def truth_plant(rng, effects, substeps=40, nameplate="3B"):
-    """The truth: 3B with friction and spring perturbed, or (``nameplate="random"``) a random nameplate."""
-    if nameplate == "random":
-        p = random_nameplate(rng, substeps=substeps)
-        return p.replace(effects=effects) if effects else p
-    over = {"friction.coulomb_Nm": 0.2 * rng.uniform(0.85, 1.15), "spring.preload_Nm": 0.15 * rng.uniform(0.9, 1.1),
-            "spring.rate_Nm_per_rad": 0.36 * rng.uniform(0.9, 1.1)}
-    over["friction.static_Nm"] = over["friction.coulomb_Nm"] * 1.1
-    p = make_plant("3B", over, substeps=substeps)
-    if effects:
-        p = p.replace(effects=effects)
-    return p
+from .synthetic import make_recording, nameplate_file_plant
 
 
 def overlap(a, b):
@@ -177,27 +72,6 @@ def truth_windows(rec_t, ang_with, ang_without, sigma, dt):
     for a, b in zip(idx[::2], idx[1::2]):
         out.append([rec_t[a], rec_t[b - 1]])
     return out
-
-
-def sensor_model(sensor_kw, dt_s) -> SensorModel:
-    """The truth's sensor effects (``truth_for``'s sensor kwargs) as the diagnosis's SensorModel."""
-    return SensorModel(offset_deg=sensor_kw.get("offset_deg", 0.0), gain=sensor_kw.get("gain", 1.0),
-                       delay_s=sensor_kw.get("delay_steps", 0) * dt_s,
-                       resolution_deg=sensor_kw.get("resolution_deg", 0.0))
-
-
-def effect_footprint(truth, rec, effects, sensor_kw):
-    """(reading with the concealed effect, reading without it) along ``rec`` [deg]. Plate effects: the
-    segment-wise simulation of the truth with and without the effect (re-initialized where the tool
-    re-initializes, so a stick-slip event placed differently does not count for the rest of the recording).
-    Sensor effects: the true angle (the truth replayed on the recorded voltage) read with and without them."""
-    if effects:
-        data = prepare([rec], 12.0)
-        sm = SensorModel()
-        return simulate(truth, sm, data)[0][0], simulate(truth.replace(effects=()), sm, data)[0][0]
-    duty = rec.voltage_V / truth.supply.voltage_V
-    phi = truth.simulate(duty=duty[:-1], angle_deg=math.degrees(truth.limp_home_rad)).angle_deg
-    return sensor_model(sensor_kw, rec.dt_s).apply(rec.t_s, phi, quantize=True), phi
 
 
 def _controller(plant_file):
@@ -304,20 +178,6 @@ def run_case(family, seed, args, workdir):
 
 
 # ---------------------------------------------------------------- two concealed effects at once
-PAIRS = ["shaft_flux_loss+coil_heating", "angle_dependent_friction+supply_drop", "sensor_delay+torque_constant_error"]
-
-
-def pair_footprints(truth, rec, parts, sensor_kw):
-    """Reading with both effects, reading with neither, and per effect (reading with both - reading without
-    that one), all by the segment-wise simulation of the truth (deg)."""
-    data = prepare([rec], 12.0)
-    sim = lambda effects, kw: simulate(truth.replace(effects=tuple(effects)), sensor_model(kw, rec.dt_s), data)[0][0]
-    both = sim(truth.effects, sensor_kw)
-    each = []
-    for _, _, fx_k, kw_k, _, _ in parts:
-        rest = [e for e in truth.effects if all(e is not f for f in fx_k)]
-        each.append(both - sim(rest, {k: v for k, v in sensor_kw.items() if k not in kw_k}))
-    return both, sim((), {}), each
 
 
 def run_pair(pair, seed, args, workdir):
@@ -344,111 +204,6 @@ def run_pair(pair, seed, args, workdir):
     row["params"] = [dict(family=f, **(score_param(rep, f, pn, pt) or {})) for f, _, _, _, pn, pt in parts if pn]
     score_heldout(row, res, held)
     return row, out
-
-
-DETECTABLE = 3.0     # an effect that moves the reading by >= 3 x the noise (100 ms moving RMS) somewhere
-
-
-def summarize(rows):
-    """Per family: rates over all runs and over the runs whose effect is detectable (DETECTABLE)."""
-    fams = []
-    for f in FAMILIES:
-        rs = [r for r in rows if r["family"] == f]
-        if not rs:
-            continue
-        # clean runs have nothing to detect; a coarse grid is read off the values whatever the noise
-        det = [r for r in rs if f in ("clean", "sensor_quantization") or r.get("effect_size", 0.0) >= DETECTABLE]
-        d = {"family": f, "runs": len(rs), "detectable": len(det),
-             "named_rate": float(np.mean([r["named"] for r in rs])),
-             "named_rate_detectable": float(np.mean([r["named"] for r in det])) if det else float("nan"),
-             "rms_before": float(np.median([r["rms_before"] for r in rs])),
-             "rms_after": float(np.median([r["rms_after"] for r in rs])),
-             "heldout_reduction": float(np.median([1 - r["heldout_rms_after"] / r["heldout_rms_before"] for r in det or rs])),
-             "heldout_after_over_noise": float(np.median([r["heldout_rms_after"] / r["true_noise"] for r in det or rs])),
-             "time_s": float(np.median([r["time_s"] for r in rs])),
-             "verdicts": {v: sum(r["verdict"] == v for r in rs)
-                          for v in ("match", "explained", "partly_explained", "unexplained") if any(r["verdict"] == v for r in rs)}}
-        wp = [r for r in det if "win_precision" in r]
-        if wp:
-            d["win_precision"] = float(np.mean([r["win_precision"] for r in wp]))
-            d["win_recall"] = float(np.mean([r["win_recall"] for r in wp]))
-        pe = [r for r in rs if "param_rel_err" in r]
-        if pe:
-            d["param_median_rel_err"] = float(np.median([r["param_rel_err"] for r in pe]))
-            d["param_coverage"] = float(np.mean([r["param_covered"] for r in pe]))
-        fams.append(d)
-    return fams
-
-
-def table(fams) -> str:
-    L = ["| family | runs (detectable) | named first: all / detectable (clean: none claimed) | RMS before / after [deg] | "
-         "held-out RMS reduction | held-out after / noise | windows P / R | param median rel. err | 90 % coverage | time [s] | verdicts |",
-         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for d in fams:
-        w = f"{d['win_precision']:.2f} / {d['win_recall']:.2f}" if "win_precision" in d else "-"
-        p = f"{d['param_median_rel_err']:.1%}" if "param_median_rel_err" in d else "-"
-        c = f"{d['param_coverage']:.0%}" if "param_coverage" in d else "-"
-        nd = "-" if d["named_rate_detectable"] != d["named_rate_detectable"] else f"{d['named_rate_detectable']:.0%}"
-        L.append(f"| {d['family']} | {d['runs']} ({d['detectable']}) | {d['named_rate']:.0%} / {nd} | "
-                 f"{d['rms_before']:.4f} / {d['rms_after']:.4f} | {d['heldout_reduction']:.0%} | "
-                 f"{d['heldout_after_over_noise']:.2f} | {w} | {p} | {c} | {d['time_s']:.0f} | "
-                 + ", ".join(f"{k} {n}" for k, n in d["verdicts"].items()) + " |")
-    return "\n".join(L)
-
-
-def _frac(xs) -> str:
-    xs = list(xs)
-    return f"{sum(xs)}/{len(xs)} ({sum(xs) / len(xs):.0%})" if xs else "-"
-
-
-def pair_table(rows) -> str:
-    """Runs with two concealed effects, per pair (Markdown; empty if there are none)."""
-    L = []
-    for pair in PAIRS:
-        rs = [r for r in rows if r["family"] == "pair:" + pair]
-        if not rs:
-            continue
-        det = [r for r in rs if min(r["effect_sizes"]) >= DETECTABLE]
-        ps = [p for r in rs for p in r["params"] if "param_rel_err" in p]
-        L.append(f"| {pair.replace('+', ' + ')} | {len(rs)} ({len(det)}) | {_frac(r['named'] for r in det)} | "
-                 f"{_frac(r['named_first'] for r in det)} | "
-                 f"{np.median([r['rms_before'] for r in rs]):.4f} / {np.median([r['rms_after'] for r in rs]):.4f} | "
-                 f"{_frac(r['heldout_rms_after'] <= 0.5 * r['heldout_rms_before'] for r in det)} | "
-                 f"{np.median([r['heldout_rms_after'] / r['true_noise'] for r in det or rs]):.2f} | "
-                 f"{np.mean([r['win_precision'] for r in det or rs]):.2f} / {np.mean([r['win_recall'] for r in det or rs]):.2f} | "
-                 + (f"{np.median([p['param_rel_err'] for p in ps]):.1%} | {_frac(p['param_covered'] for p in ps)} | " if ps else "- | - | ")
-                 + f"{np.median([r['time_s'] for r in rs]):.0f} |")
-    if not L:
-        return ""
-    return "\n".join(["| pair | runs (both detectable) | both named (detectable) | one of them named first | "
-                      "RMS before / after [deg] | held-out RMS falls >= 50 % | held-out after / noise | windows P / R | "
-                      "param median rel. err (both) | 90 % coverage | time [s] |",
-                      "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"] + L)
-
-
-def targets(rows) -> str:
-    """The issue's targets against what the single-effect rows measured (Markdown)."""
-    rows = [r for r in rows if not r["family"].startswith("pair:")]
-    det = [r for r in rows if r["family"] != "clean" and
-           (r["family"] == "sensor_quantization" or r.get("effect_size", 0.0) >= DETECTABLE)]
-    clean = [r for r in rows if r["family"] == "clean"]
-    win = [r for r in det if "win_precision" in r and r["family"] not in ("sensor_quantization",)]
-    par = [r for r in det if "param_rel_err" in r]
-    moderate = [r for r in par if r.get("effect_size", math.inf) >= 10.0]
-    t = sorted(r["time_s"] for r in rows)
-    L = ["| target | measured |", "| --- | --- |",
-         f"| right effect named first >= 90 % (detectable runs) | {_frac(r['named'] for r in det)} |",
-         f"| clean recordings: no effect claimed >= 95 % | {_frac(r['named'] for r in clean)} |",
-         f"| clean recordings: verdict `match` | {_frac(r['verdict'] == 'match' for r in clean)} |",
-         "| mismatch windows precision / recall >= 0.8 (mean over detectable runs) | "
-         + (f"{np.mean([r['win_precision'] for r in win]):.2f} / {np.mean([r['win_recall'] for r in win]):.2f}" if win else "-") + " |",
-         f"| main parameter within +-10 % (named runs, effect >= 10x noise) | {_frac(r['param_rel_err'] <= 0.10 for r in moderate)} |",
-         f"| 90 % interval covers the truth >= 85 % (named runs) | {_frac(r['param_covered'] for r in par)} |",
-         f"| held-out RMS falls >= 50 % (detectable runs) | {_frac(r['heldout_rms_after'] <= 0.5 * r['heldout_rms_before'] for r in det)} |",
-         f"| held-out RMS ends <= 1.5x the noise (detectable runs) | {_frac(r['heldout_rms_after'] <= 1.5 * r['true_noise'] for r in det)} |",
-         f"| diagnosis of 10 s at 1 kHz, full library, <= 120 s | {_frac(x <= 120.0 for x in t)}; median {np.median(t):.0f} s, max {t[-1]:.0f} s |"
-         if t else "| time | - |"]
-    return "\n".join(L)
 
 
 def _atomic(path: Path, text: str) -> None:
@@ -517,27 +272,6 @@ def _key(r) -> tuple:
     return r["family"], r["seed"], r.get("nameplate", "3B")
 
 
-def loop_table(rows) -> str:
-    """Rates per loop type and nameplate (single-effect runs): named first on detectable runs, clean runs."""
-    rows = [r for r in rows if not r["family"].startswith("pair:")]
-    L = ["| nameplate | loop | detectable runs: named first | clean: no effect claimed | clean: `match` | "
-         "held-out after / noise (detectable, median) | time median / max [s] |", "| --- | --- | --- | --- | --- | --- | --- |"]
-    for npl in sorted({r.get("nameplate", "3B") for r in rows}):
-        for closed in (False, True):
-            rs = [r for r in rows if r.get("nameplate", "3B") == npl and r["closed"] == closed]
-            if not rs:
-                continue
-            det = [r for r in rs if r["family"] != "clean" and
-                   (r["family"] == "sensor_quantization" or r.get("effect_size", 0.0) >= DETECTABLE)]
-            cl = [r for r in rs if r["family"] == "clean"]
-            t = [r["time_s"] for r in rs]
-            ho = f"{np.median([r['heldout_rms_after'] / r['true_noise'] for r in det]):.2f}" if det else "-"
-            L.append(f"| {npl} | {'closed' if closed else 'open'} | {_frac(r['named'] for r in det)} | "
-                     f"{_frac(r['named'] for r in cl)} | {_frac(r['verdict'] == 'match' for r in cl)} | {ho} | "
-                     f"{np.median(t):.0f} / {np.max(t):.0f} |")
-    return "\n".join(L)
-
-
 def main(argv=None) -> int:
     """``etb-gym prove`` / ``python -m etb_gym.diagnose.proof``: exit code 0, or 2 on a usage error."""
     try:
@@ -552,8 +286,7 @@ def main(argv=None) -> int:
     return 0
 
 
-def run(argv=None):
-    """Run (or summarize) the proof; returns (rows, per-family summary)."""
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="etb-gym prove", description=__doc__.split("\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog=__doc__.split("\n", 2)[2])
@@ -578,7 +311,11 @@ def run(argv=None):
     ap.add_argument("--summarize", action="store_true", help="only rebuild proof.md/proof.json from --out's rows")
     ap.add_argument("--update-docs", action="store_true",
                     help="also write the tables into docs/diagnosis.md and README.md (between <!-- proof:... --> markers)")
-    a = ap.parse_args(argv)
+    return ap
+
+
+def _plan(a):
+    """(output directory or None, rows file or None, the rows already there, the (family, seed) runs to do)."""
     if a.quick:
         a.families = a.families or QUICK
         a.seeds = min(a.seeds, 1) if a.seeds == 20 else a.seeds
@@ -603,8 +340,11 @@ def run(argv=None):
     done = {_key(r) for r in rows}
     todo = [(f, s) for s in range(a.first_seed, a.first_seed + a.seeds) for f in fams
             if (f, s, a.nameplate) not in done]
-    if a.summarize:
-        todo = []
+    return out, rows_file, rows, ([] if a.summarize else todo)
+
+
+def _run_all(a, todo, rows, out, rows_file) -> None:
+    """Run ``todo``, appending each row to ``rows`` (and the rows file); the first seed's figures to ``out``."""
     from tqdm import tqdm
     with tempfile.TemporaryDirectory() as work:
         bar = tqdm(total=len(todo), unit="run", disable=not todo)
@@ -623,6 +363,13 @@ def run(argv=None):
                     if (outdir / fn).exists():
                         shutil.copy(outdir / fn, dst / fn)
         bar.close()
+
+
+def run(argv=None):
+    """Run (or summarize) the proof; returns (rows, per-family summary)."""
+    a = _parser().parse_args(argv)
+    out, rows_file, rows, todo = _plan(a)
+    _run_all(a, todo, rows, out, rows_file)
     fam = summarize(rows)
     pairs = pair_table(rows)
     loops = loop_table(rows) if rows else ""
@@ -639,7 +386,6 @@ def run(argv=None):
                                                                   "pairs": pairs or "(no two-effect runs)"}):
             print(f"updated {f}")
     return rows, fam
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -66,17 +67,10 @@ def _where(before, after, top=2):
     return [g for d, g in gains[:top] if d > 0] or ["throughout"]
 
 
-def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor, opts, elapsed):
-
-    names = [r.name for r in recs]
-    tab0, regs = _regimes(data, base, res0, nominal.spec.build(nominal.x))
-    tab1, _ = _regimes(data, base, res1, (plant, sensor))
-    before, after = _merge_tables(tab0), _merge_tables(tab1)
-    sig0 = significant_residual(data, res0)
-    sig1 = significant_residual(data, res1)
-    windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg) for rd, r in zip(data.recs, res0)}
+def _effects(data, base, nominal, final, steps, res0, opts) -> list:
+    """One entry per accepted step (in order: where it helped, its parameters, what it gained), and the sensor's
+    quantization when the readings lie on a grid coarser than the resolution assumed."""
     effects = []
-    prev = nominal
     prev_res = res0
     errs = final.stderr()
     vals = final.values
@@ -94,7 +88,7 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
                         "rms_gain_deg": _rms(prev_res) - _rms(r_new), "delta_bic": st.dbic,
                         "heldout_gain": st.cv_gain,
                         **({"discrimination": st.discrimination} if getattr(st, "discrimination", None) else {})})
-        prev, prev_res = st.fit, r_new
+        prev_res = r_new
     quant = max(rd.resolution_deg for rd in data.recs)
     if "sensor_quantization" in opts.candidates and quant > QUANT_K * opts.sensor_resolution_deg:
         effects.append({"id": "sensor_quantization", "family": "sensing",
@@ -102,6 +96,36 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
                         "where": ["every sample (the readings lie on a grid)"],
                         "parameters": {"resolution_deg": {"value": quant, "stderr": 0.0, "unit": "deg"}},
                         "rms_gain_deg": 0.0, "assumed_resolution_deg": opts.sensor_resolution_deg})
+    return effects
+
+
+def _unexplained(data, res1, tab1) -> list:
+    """Per recording: where the final model's residual is still significant (windows, regimes, description)."""
+    unexplained = []
+    for rd, r, tab in zip(data.recs, res1, tab1):
+        wins = L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg)
+        mask = np.zeros(r.size, bool)
+        for a, b in wins:
+            mask |= (rd.rec.t_s >= a) & (rd.rec.t_s <= b)
+        sig_regs = sorted([row for row in tab if row["significant"]], key=lambda row: -row["rms_deg"])
+        where = ", ".join(row["regime"] for row in sig_regs[:2]) or "throughout"
+        rms = float(math.sqrt(np.mean(r[mask] ** 2))) if mask.any() else float(math.sqrt(np.mean(r ** 2)))
+        unexplained.append({"recording": rd.rec.name, "where": where, "rms_deg": rms,
+                            "windows_s": wins, "description": L.describe(rd.rec, r, None, rd.noise_deg, mask)})
+    return unexplained
+
+
+def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor, opts, elapsed):
+
+    names = [r.name for r in recs]
+    tab0, regs = _regimes(data, base, res0, nominal.spec.build(nominal.x))
+    tab1, _ = _regimes(data, base, res1, (plant, sensor))
+    before, after = _merge_tables(tab0), _merge_tables(tab1)
+    sig0 = significant_residual(data, res0)
+    sig1 = significant_residual(data, res1)
+    windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg) for rd, r in zip(data.recs, res0)}
+    effects = _effects(data, base, nominal, final, steps, res0, opts)
+    quant = max(rd.resolution_deg for rd in data.recs)
     fitted = [e for e in effects if e["id"] != "sensor_quantization"]
     if not sig0:
         verdict = "explained" if effects else "match"
@@ -109,18 +133,7 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
         verdict = "partly_explained" if sig1 else "explained"
     else:
         verdict = "unexplained"
-    unexplained = []
-    if sig1:
-        for rd, r, tab in zip(data.recs, res1, tab1):
-            wins = L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg)
-            mask = np.zeros(r.size, bool)
-            for a, b in wins:
-                mask |= (rd.rec.t_s >= a) & (rd.rec.t_s <= b)
-            sig_regs = sorted([row for row in tab if row["significant"]], key=lambda row: -row["rms_deg"])
-            where = ", ".join(row["regime"] for row in sig_regs[:2]) or "throughout"
-            rms = float(math.sqrt(np.mean(r[mask] ** 2))) if mask.any() else float(math.sqrt(np.mean(r ** 2)))
-            unexplained.append({"recording": rd.rec.name, "where": where, "rms_deg": rms,
-                                "windows_s": wins, "description": L.describe(rd.rec, r, None, rd.noise_deg, mask)})
+    unexplained = _unexplained(data, res1, tab1) if sig1 else []
     tests = []
     for rd, r0, r1 in zip(data.recs, res0, res1):
         x0, bound = L.input_xcorr(r0, rd.rec.voltage_V)
@@ -367,7 +380,12 @@ def write_failed(out: Path, reason: str, *, model: str, recordings: list, exc: B
 
 def write(result, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
     figures = plots(result, out)
+    stages = result.report.get("elapsed_breakdown_s")
+    if isinstance(stages, dict):                 # the figures' wall time too (the report's json comes after)
+        stages["figures"] = time.perf_counter() - t0
+        result.elapsed_s = result.report["elapsed_s"] = result.report.get("elapsed_s", 0.0) + stages["figures"]
     save_plant(result.plant, out / "calibrated_plant.toml")
     _atomic_text(out / "report.json", json.dumps(_json_safe(result.report), indent=2) + "\n")
     _atomic_text(out / "report.md", markdown(result, figures))

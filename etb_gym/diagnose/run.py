@@ -86,9 +86,8 @@ def _rms(res: list) -> float:
     return float(math.sqrt(np.mean(np.concatenate(res) ** 2)))
 
 
-def diagnose(recordings, model: str = "3B", out=None, options: Options | None = None, **kw) -> "Result":
-    """Diagnose ``recordings`` (paths or :class:`Recording`) against ``model``; write the report to ``out``."""
-    t_start = time.perf_counter()
+def _setup(model, options, kw) -> Options:
+    """The options (``options`` updated by ``kw``, or built from ``model`` and ``kw``), checked."""
     opts = options or Options(model=model, **kw)
     if options is not None and kw:
         opts = dataclasses.replace(options, **kw)
@@ -97,28 +96,51 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
     unknown = [c for c in opts.candidates if c not in CANDIDATES]
     if unknown:
         raise ValueError(f"unknown candidate effect(s) {unknown}; valid: {', '.join(CANDIDATES)}")
-    if out is not None:
-        from .report import prepare_out
-        prepare_out(Path(out))                 # before the work: a bad --out must not cost a diagnosis
+    if opts.substeps is not None and not (isinstance(opts.substeps, (int, np.integer)) and opts.substeps >= 1):
+        raise ValueError(f"substeps = {opts.substeps!r}: expected a positive integer or None (chosen)")
+    return opts
+
+
+def _load(recordings) -> list:
     recs = [r if isinstance(r, Recording) else load_recording(r) for r in recordings]
     if not recs:
         raise ValueError("diagnose needs at least one recording")
     names = [r.name for r in recs]
     if len(set(names)) != len(names):
         raise ValueError(f"recordings must have distinct file names, got {names}")
-    from tqdm import tqdm
-    log = (tqdm.write if opts.progress else print) if opts.verbose else (lambda *a, **k: None)
+    return recs
+
+
+def _base_and_data(opts: Options, recs: list) -> tuple[Plant, Data]:
+    """The plant to start from (at the recordings' sample period and the integrator step: given or chosen) and
+    the prepared data."""
     dt = recs[0].dt_s
     base = opts.plant if opts.plant is not None else make_plant(opts.model, control_period_s=round(dt, 9))
     if abs(base.control_period_s - dt) > 1e-6 * dt:
         base = base.replace(control_period_s=dt)
     data = prepare(recs, base.supply.voltage_V, current_weight=opts.current_weight)
-    if opts.substeps is not None:
-        if not (isinstance(opts.substeps, (int, np.integer)) and opts.substeps >= 1):
-            raise ValueError(f"substeps = {opts.substeps!r}: expected a positive integer or None (chosen)")
-        base = base.replace(substeps=int(opts.substeps))
-    else:
-        base = base.replace(substeps=choose_substeps(base, data))
+    n = int(opts.substeps) if opts.substeps is not None else choose_substeps(base, data)
+    return base.replace(substeps=n), data
+
+
+def diagnose(recordings, model: str = "3B", out=None, options: Options | None = None, **kw) -> "Result":
+    """Diagnose ``recordings`` (paths or :class:`Recording`) against ``model``; write the report to ``out``."""
+    from .threads import one_blas_thread
+    with one_blas_thread():                 # small linear algebra, parallel fits: threads only contend
+        return _diagnose(recordings, model, out, options, kw)
+
+
+def _diagnose(recordings, model, out, options, kw) -> "Result":
+    t_start = time.perf_counter()
+    opts = _setup(model, options, kw)
+    if out is not None:
+        from .report import prepare_out
+        prepare_out(Path(out))                 # before the work: a bad --out must not cost a diagnosis
+    recs = _load(recordings)
+    from tqdm import tqdm
+    log = (tqdm.write if opts.progress else print) if opts.verbose else (lambda *a, **k: None)
+    base, data = _base_and_data(opts, recs)
+    dt = recs[0].dt_s
     log(f"etb-gym diagnose: {len(recs)} recording(s), {sum(r.n for r in recs)} samples at {1 / dt:.0f} Hz, "
         f"model {base.model or 'custom'}; noise floor {data.noise_deg:.4f} deg; {base.substeps} substeps per sample")
 
@@ -167,6 +189,11 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
     finally:
         runner.close()
         bar.close()
+    return _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skipped, shaped, out, lap, stages)
+
+
+def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skipped, shaped, out, lap, stages):
+    """The result and its report (written to ``out`` if given); ``elapsed_breakdown_s`` gets the report stage."""
     plant, sensor = final.spec.build(final.x)
     res1 = angle_residuals_deg(simulate(plant, sensor, data), data)
     from .report import assemble
@@ -178,12 +205,10 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
                              for rd in data.recs}
     if shaped is not None:
         shaped.attach(result, out)
+    lap("report")
+    result.report["elapsed_breakdown_s"] = stages
+    result.elapsed_s = result.report["elapsed_s"] = time.perf_counter() - t_start   # the stages' sum so far
     if out is not None:
         from .report import write
-        lap("report")
-        result.report["elapsed_breakdown_s"] = stages
         write(result, Path(out))
-    else:
-        lap("report")
-        result.report["elapsed_breakdown_s"] = stages
     return result

@@ -203,9 +203,11 @@ class Problem:
 
     def penalty(self, lams) -> np.ndarray:
         """The penalty's matrix sum_g lambda_g (D_g^T D_g + RIDGE diag(table_g)) over the free parameters."""
+        if getattr(self, "_unit_penalties", None) is None:       # each group's matrix at lambda = 1, once
+            self._unit_penalties = [D.T @ D + RIDGE * np.diag(ridge) for D, ridge in self.groups]
         P = np.zeros((self.free.size, self.free.size))
-        for lam, (D, ridge) in zip(lams, self.groups):
-            P += lam * (D.T @ D + RIDGE * np.diag(ridge))
+        for lam, G in zip(lams, self._unit_penalties):
+            P += lam * G
         return P
 
 
