@@ -62,6 +62,7 @@ class StopPredictor:
         self.levels = None
         self.P = self.plant.P
         self._xo = None
+        self.innovation = 0.0
         self.stop_angle(0.0, 1.0, self.plant.supply.voltage_V, 0.0, 0.0)     # load the compiled step once, here
 
     def update_levels(self, resistance_ohm: float, friction_level: float, spring_level: float) -> None:
@@ -77,6 +78,7 @@ class StopPredictor:
 
     def reset(self) -> None:
         self._xo = None
+        self.innovation = 0.0
 
     def set_state(self, phi: float, v: float, i: float) -> None:
         """Start the predictions from this plate state (angle rad, speed rad/s, current A), the LuGre bristles
@@ -101,10 +103,16 @@ class StopPredictor:
         else:
             self._step(xo, d_prev, V, self.P, 0.0, self.dt, self._nsub, self._switching, self._fpwm, self._aux)
             eps = y - xo[0]
+            self.innovation = eps
             xo[0] += gain_angle * eps
             xo[1] += gain_speed * eps / self.dt
             xo[2] = i_m
         self._x0[:] = xo
+
+    def level_sensitivity(self) -> float:
+        """Angle (rad) one control period of sliding moves the plate less per unit of friction level (the
+        nominal Coulomb torque's deceleration over one period, T_c T^2 / (2 J))."""
+        return self.m.coulomb_Nm * self.dt * self.dt / (2.0 * self.m.inertia_kg_m2)
 
     @property
     def speed(self) -> float:

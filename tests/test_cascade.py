@@ -134,3 +134,35 @@ def test_pid_holds_where_its_springs_differ():
     tr, _ = simulate(Job("ETB-3B-v0", "pid", "small_step_40", "springs_+20", 0))
     m = metrics(tr, SCENARIOS["small_step_40"])
     assert m["stable"] and m["steady_state_error_deg"] < 0.1
+
+
+def test_innovation_friction_estimate_stays_in_its_bounds():
+    """The observer-innovation update of the friction level is projected onto FRICTION_BOUNDS: absurd
+    innovations (the plate far ahead of / behind the prediction for seconds) end at a bound, never beyond;
+    at rest (below the speed threshold) nothing is learnt."""
+    m = NominalModel.for_model("3B")
+    st = SelfTuning(m, 1e-3)
+    sens = 1e-3
+    for _ in range(5000):
+        st.update_from_innovation(0.05, 5.0, sens, 0.5, 0.3)       # far ahead opening: less friction
+    assert st.friction_level == pytest.approx(SelfTuning.FRICTION_BOUNDS[0])
+    for _ in range(5000):
+        st.update_from_innovation(0.05, -5.0, sens, 0.5, 0.3)      # far behind closing: more friction
+    assert st.friction_level == pytest.approx(SelfTuning.FRICTION_BOUNDS[1])
+    st.update_from_innovation(-1.0, 0.1, sens, 0.5, 0.3)            # resting: no update
+    assert st.friction_level == pytest.approx(SelfTuning.FRICTION_BOUNDS[1])
+    st.reset()
+    assert st.friction_level == 1.0
+
+
+@pytest.mark.parametrize("scenario", ["small_step_limp_home", "small_step_limp_home_neg"])
+def test_ptos_small_step_at_limp_home_settles_with_half_the_friction(scenario):
+    """At -50 % friction the springs' preload (0.15 Nm) exceeds the static friction (0.11 Nm) at limp-home: with
+    the nominal friction level the 0.5 deg steps overshot 2 deg and then limit-cycled by 0.46 deg (never within
+    0.1 deg). The friction level learnt from the observer's innovation during the first move brings them in."""
+    from etb_gym.benchmark import SCENARIOS, Job, metrics, simulate
+
+    tr, ctrl_name = simulate(Job("ETB-3B-v0", "ptos", scenario, "friction_-50", 0))
+    mm = metrics(tr, SCENARIOS[scenario])
+    assert mm["settling_time_s"] < 0.06, mm
+    assert mm["steady_state_error_deg"] < 0.05 and mm["limit_cycle_deg"] < 0.02, mm
