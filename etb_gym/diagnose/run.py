@@ -182,7 +182,7 @@ def diagnose(recordings, model: str = "3B", out=None, options: Options | None = 
     result.report["residual"] = {rd.rec.name: rd.residual for rd in data.recs}
     if any(rd.residual == "observer" for rd in data.recs):
         from . import observer
-        result.report["observer"] = {"bandwidth_rad_s": observer.OMEGA_O, "damping": observer.ZETA_O}
+        result.report["observer"] = {"bandwidth_rad_s": observer.OMEGA_O, "corrects": "angle"}
     if shaped is not None:
         shaped.attach(result, out)
     if out is not None:
