@@ -11,6 +11,7 @@ the source of the stepper, written once and used in two builds:
     control_step(x, duty, V, P, t0, dt, n, sw, f, aux)   one control period: PWM bridge + substeps
     control_step_dx(..., aux, dx)                   the same with caller-owned scratch dx (no allocation)
     simulate(x0, duty[], V[], P, ...)               many control periods
+    observe(x0, duty[], V[], P, ..., y[], gain[], lag, X, A)   the same with output injection
     batch_step(X, duty[], V[], P[], ...)            N independent plants, one control period each (parallel)
     batch_step_serial(...)                          the same on the calling thread
     control_step_group(...)                         GROUP plants of a batch in lockstep (averaged PWM)
@@ -406,6 +407,35 @@ def simulate(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, X, A):
     return duty.shape[0]
 
 
+def observe(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, y, gain, lag, X, A):
+    """simulate with output injection (a fixed-gain state observer, diagnose/observer.py): X[k+1], A[k+1] are
+    the one-step predictions after period k; then x += gain * (y[k+1] - angle predicted for sample k+1 - lag),
+    y the measured angle [rad] (nan: no correction), lag >= 0 the sensor delay in periods (interpolated)."""
+    x = x0.copy()
+    aux = np.zeros(N_AUX)
+    dx = np.empty(N_SCRATCH)
+    rhs(t0, x, duty[0] * supply_V[0], P, dx, aux)
+    X[0, :] = x
+    A[0, :] = aux
+    m = int(lag)
+    f = lag - m
+    for k in range(duty.shape[0]):
+        ok = control_step_dx(x, duty[k], supply_V[k], P, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
+        X[k + 1, :] = x
+        A[k + 1, :] = aux
+        if not ok:
+            return k
+        j = k + 1 - m
+        pred = X[j, 0] if j >= 1 else X[0, 0]
+        if f > 0.0 and j >= 1:
+            pred = (1.0 - f) * pred + f * X[j - 1, 0]
+        e = y[k + 1] - pred
+        if e == e:
+            for s in range(gain.shape[0]):
+                x[s] += gain[s] * e
+    return duty.shape[0]
+
+
 
 def control_step_group(X, duty, supply_V, P, T0, AUX, DX, OK, b0, dt, n_sub):
     """Plants b0 .. b0+GROUP-1 through one averaged-PWM control period in lockstep: each plant's operations
@@ -598,6 +628,7 @@ JIT_OPTIONS = {
     "control_step_dx": {},
     "control_step": {},
     "simulate": {},
+    "observe": {},
     "physical": {},
     "control_step_group": {},
     "batch_step": {"parallel": True},
@@ -703,6 +734,7 @@ class _Fns:
         self.substep = ns["substep"]
         self.control_step = ns["control_step"]
         self.simulate = ns["simulate"]
+        self.observe = ns["observe"]
         self.batch_step = ns["batch_step"]
         self.batch_step_serial = ns["batch_step_serial"]
         self.control_step_dx = ns["control_step_dx"]

@@ -20,6 +20,7 @@ from ..plant import Plant
 from ..recordings import Recording
 from .candidates import Candidate, FitParam, nominal_params
 from .measurement import SensorModel, noise_floor, detect_resolution
+from .observer import observe
 
 SEGMENT_MIN_S = 0.25
 
@@ -41,6 +42,7 @@ class RecData:
     current_sigma_A: float
     tol_deg: np.ndarray | None = None      # the model's own integration error along the recording
     closed_loop_evidence: float = 0.0      # see closed_loop_evidence; > LOOP_Z: recorded in closed loop
+    residual: str = "replay"               # "replay" (segment-wise output error) or "observer" (observer.py)
 
 
 @dataclasses.dataclass
@@ -76,8 +78,16 @@ def closed_loop_evidence(rec) -> float:
     return best * math.sqrt(max(n, 1))
 
 
+RESIDUALS = ("auto", "replay", "observer")
+
+
 def prepare(recordings, nominal_supply_V: float, segment_min_s: float = SEGMENT_MIN_S,
-            current_weight: float = 0.3) -> Data:
+            current_weight: float = 0.3, residual: str = "replay") -> Data:
+    """The recordings with what the fit needs. ``residual``: "replay" (the recorded voltage replayed segment by
+    segment, output error), "observer" (the one-step prediction error of observer.py) or "auto" (the observer
+    on recordings detected as closed loop, :func:`closed_loop_evidence`, the replay on the others)."""
+    if residual not in RESIDUALS:
+        raise ValueError(f"residual = {residual!r}: expected one of {', '.join(RESIDUALS)}")
     dts = [r.dt_s for r in recordings]
     if max(dts) - min(dts) > 1e-3 * min(dts):
         raise ValueError(f"recordings have different sample periods {sorted(set(round(d, 9) for d in dts))} s: "
@@ -103,9 +113,17 @@ def prepare(recordings, nominal_supply_V: float, segment_min_s: float = SEGMENT_
         if r.current_A is not None:
             from .measurement import second_difference_sigma
             cs = max(second_difference_sigma(r.current_A), 1e-4)
-        out.append(RecData(r, duty, Vs, bounds, max(sigma, 1e-4), q, rest, cs,
-                           closed_loop_evidence=closed_loop_evidence(r)))
+        ev = closed_loop_evidence(r)
+        use = residual if residual != "auto" else ("observer" if ev > LOOP_Z else "replay")
+        out.append(RecData(r, duty, Vs, bounds, max(sigma, 1e-4), q, rest, cs, closed_loop_evidence=ev,
+                           residual=use))
     return Data(out, float(np.median(dts)), current_weight)
+
+
+def replay_view(data: Data) -> Data:
+    """The same recordings with the replay residual everywhere (the observer would hide the model's own
+    integration error, which choosing the step must see)."""
+    return dataclasses.replace(data, recs=[dataclasses.replace(rd, residual="replay") for rd in data.recs])
 
 
 @dataclasses.dataclass
@@ -191,6 +209,14 @@ def simulate(plant: Plant, sensor: SensorModel, data: Data, raise_on_failure: bo
     R = float(getattr(plant.drive.params, "resistance_ohm", 1.0))
     out = []
     for rd in data.recs:
+        if rd.residual == "observer":         # closed loop: one-step prediction error of the observer
+            pred, why = observe(plant, sensor, rd)
+            if pred is None:
+                if raise_on_failure:
+                    raise SimulationFailed(why)
+                return None
+            out.append(pred)
+            continue
         r = rd.rec
         n = r.n
         ang = np.full(n, np.nan)

@@ -322,8 +322,13 @@ def markdown(result, figures) -> str:
         lines.append(f"| {t['recording']} | {t['ljung_box_p_before']:.2g} | {t['ljung_box_p_after']:.2g} | "
                      f"{t['input_xcorr_before']:.3f} | {t['input_xcorr_after']:.3f} | {t['input_xcorr_bound_99']:.3f} |")
     if r.get("loop"):
-        lines += ["", "Loop type per recording (from how the voltage follows the angle): "
-                  + ", ".join(f"`{k}` {v}" for k, v in r["loop"].items()) + "."]
+        res = r.get("residual", {})
+        lines += ["", "Loop type per recording (from how the voltage follows the angle) and the residual used: "
+                  + ", ".join(f"`{k}` {v}" + (f" ({res[k]})" if k in res else "") for k, v in r["loop"].items()) + "."]
+        if r.get("observer"):
+            lines += ["", "Observer residual: one-step prediction error, the model's angle pulled towards the measured "
+                      f"angle after every sample (bandwidth {r['observer']['bandwidth_rad_s']:g} rad/s); the calibrated "
+                      "plant itself is unchanged."]
     figures = list(figures) + [f for f in r.get("shape_figures", []) if f not in figures]
     lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
     lines += ["", f"The calibrated plant (with the effects that act on the plate) is `{r['calibrated_plant']}`: "

@@ -19,7 +19,7 @@ from . import fit as F
 from .candidates import CANDIDATES, FITTED_CANDIDATES
 from .explain import Runner, select
 from .measurement import DEFAULT_RESOLUTION_DEG
-from .model import Data, SimulationFailed, Spec, angle_residuals_deg, prepare, simulate
+from .model import Data, SimulationFailed, Spec, angle_residuals_deg, prepare, replay_view, simulate
 from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_residual  # noqa: F401  (re-exported)
 
 _significant_residual = significant_residual
@@ -33,6 +33,7 @@ class Options:
     jobs: int = 2
     sensor_resolution_deg: float = DEFAULT_RESOLUTION_DEG
     current_weight: float = 0.3
+    residual: str = "auto"                     # "auto": observer on closed-loop recordings, else replay (model.prepare)
     substeps: int | None = None                # integrator substeps per sample; None: chosen (choose_substeps)
     progress: bool = True
     verbose: bool = True
@@ -63,6 +64,7 @@ def choose_substeps(base: Plant, data: Data, choices=SUBSTEP_CHOICES, frac: floa
     missing physics: false alarms.)"""
     spec = Spec(base)
     plant, sensor = spec.build(spec.x0())
+    data = replay_view(data)        # the observer's corrections would hide the stepper's own error
     sims = {}                       # each step simulated once: 2n of one try is n of the next
 
     def sim(n):
@@ -118,7 +120,7 @@ def _base_and_data(opts: Options, recs: list) -> tuple[Plant, Data]:
     base = opts.plant if opts.plant is not None else make_plant(opts.model, control_period_s=round(dt, 9))
     if abs(base.control_period_s - dt) > 1e-6 * dt:
         base = base.replace(control_period_s=dt)
-    data = prepare(recs, base.supply.voltage_V, current_weight=opts.current_weight)
+    data = prepare(recs, base.supply.voltage_V, current_weight=opts.current_weight, residual=opts.residual)
     n = int(opts.substeps) if opts.substeps is not None else choose_substeps(base, data)
     return base.replace(substeps=n), data
 
@@ -161,7 +163,7 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         bar.set_description("calibrating the nominal model")
         spec0 = Spec(base)
         try:
-            nominal = F.fit(spec0, data, max_nfev=40)
+            nominal = F.calibrate(spec0, data, max_nfev=40)
         except SimulationFailed as e:
             raise SimulationFailed(f"the nominal model ({base.model or 'plant file'}) cannot be simulated on the "
                                    f"recorded voltage, so it cannot be calibrated: {e}. Check the plant's "
@@ -203,6 +205,11 @@ def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skippe
     from .model import LOOP_Z
     result.report["loop"] = {rd.rec.name: "closed" if rd.closed_loop_evidence > LOOP_Z else "open"
                              for rd in data.recs}
+    # which residual each recording was calibrated, located and explained with (model.prepare, observer.py)
+    result.report["residual"] = {rd.rec.name: rd.residual for rd in data.recs}
+    if any(rd.residual == "observer" for rd in data.recs):
+        from . import observer
+        result.report["observer"] = {"bandwidth_rad_s": observer.OMEGA_O, "corrects": "angle"}
     if shaped is not None:
         shaped.attach(result, out)
     lap("report")
