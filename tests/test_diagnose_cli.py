@@ -52,6 +52,7 @@ def _snapshot(d):
     (["--substeps", "-3"], ["--substeps", "positive integer"]),
     (["--model", "4Z"], ["--model", "invalid choice"]),
     (["--candidates", "warp_drive"], ["--candidates", "invalid choice"]),
+    (["--residual", "kalman"], ["--residual", "invalid choice", "observer"]),
 ])
 def test_bad_options_rejected_before_work(tmp_path, rec_path, reached, capsys, args, words):
     out = tmp_path / "o"
@@ -60,6 +61,13 @@ def test_bad_options_rejected_before_work(tmp_path, rec_path, reached, capsys, a
     for w in words:
         assert w in err, (w, err)
     assert "Traceback" not in err and not out.exists() and not reached
+
+
+@pytest.mark.parametrize("value", ["auto", "replay", "observer"])
+def test_residual_option_reaches_the_diagnosis(tmp_path, rec_path, reached, value):
+    with pytest.raises(Stop):
+        dcli.main([str(rec_path), "--out", str(tmp_path / "o"), "--residual", value])
+    assert reached[0][2].residual == value
 
 
 def test_out_is_checked_before_work(tmp_path, rec_path, reached, capsys):

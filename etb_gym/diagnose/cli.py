@@ -72,6 +72,10 @@ def add_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument("--substeps", type=_int_at_least(1, "a positive integer"), default=None,
                    help="integrator substeps per sample (default: chosen so the model's own error stays below "
                         "half the noise floor, 5..80)")
+    p.add_argument("--residual", choices=("auto", "replay", "observer"), default="auto",
+                   help="what the model is scored by: the replay of the recorded voltage, or the one-step error of "
+                        "an observer pulled towards the measured angle (for closed-loop recordings); auto (default): "
+                        "the observer where the recording is detected as closed loop (docs/diagnosis.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, summary only")
     return p
 
@@ -159,6 +163,7 @@ def load_inputs(a):
         kw["sensor_resolution_deg"] = a.sensor_resolution_deg
     if a.substeps is not None:
         kw["substeps"] = a.substeps
+    kw["residual"] = a.residual
     opts = Options(model=a.model, plant=plant, max_effects=a.max_effects, jobs=a.jobs, progress=not a.quiet,
                    verbose=not a.quiet, **kw)
     check_out(Path(a.out), a.force, inputs=[*a.recordings, *([a.plant] if a.plant else [])])
