@@ -5,9 +5,10 @@ the source of the stepper, written once and used in two builds:
 
     rhs(t, x, u, P, dx, aux)                        time derivatives of the full state (one evaluation)
     rhs_carried(t, x, u, P, dx, aux, c...)          the same, given the carried values c at x (below)
+    rhs_stage(t, x, u, P, dx, c...)                 the same without recording torques in aux (first stage)
     relax(t, tau, x, u, P, c...)                    flow A over tau: the components' exact state updates
     substep(t, h, ha, x, u, P, dx, aux, c...) -> c  flow A over ha, then flow B over h (explicit midpoint)
-    step(t, h, hp, x, ...) -> hp, c...              one substep, split at contact edges / cut in impacts
+    step(t, h, hp, r, x, ...) -> hp, c..., r        one substep, split at contact edges / cut in impacts
     control_step(x, duty, V, P, t0, dt, n, sw, f, aux)   one control period: PWM bridge + substeps
     control_step_dx(..., aux, dx)                   the same with caller-owned scratch dx (no allocation)
     simulate(x0, duty[], V[], P, ...)               many control periods
@@ -17,6 +18,8 @@ the source of the stepper, written once and used in two builds:
 
 The *plain* build binds the components' pure-Python kernels (``kernel.py_func``) and runs in CPython;
 the *fast* build binds the numba dispatchers and is compiled (the batch step in parallel over plants).
+Modules: the composition-dependent blocks of the source are built in ``stepper_blocks.py``, the two builds and
+numba's on-disk cache in ``kernel_cache.py``, the thread pool's configuration in ``threadpool.py``.
 Both execute the same source, so they agree to floating-point rounding, and the batch step equals N
 single control steps bit for bit (tests/test_fast_path.py). Where the time goes and what each speed
 measure bought: docs/speed.md. The scheme and its accuracy: docs/model.md, sec. 9.
@@ -35,7 +38,8 @@ the half step still owed); a control period begins with A(h/2) and ends with A(h
 Contacts. A component may declare ``edges`` (angles where its torque jumps: stops, limp-home band) and
 ``rate`` (sqrt(k/J) while an impact is under way). ``step`` redoes a substep that crosses an edge in pieces
 split at the crossing, and cuts a substep in an impact into m = max(CONTACT_PIECES, ceil(h r / RHO_MAX))
-pieces when h r > RHO_MIN (``resolve``, the rare path, not inlined). ``physical`` checks after each control
+pieces when h r > RHO_MIN (``resolve``, the rare path, not inlined). The rate at the end of a substep is
+handed to the next one (``r``), so ``rates`` runs once per substep. ``physical`` checks after each control
 period that the state is finite and every component's ``plausible`` holds (no garbage past divergence).
 
 Carried values. A component may declare ``carry(phi, omega, i, p)``, a value of the shaft and coil state
