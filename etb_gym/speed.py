@@ -57,6 +57,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .speed_baseline import EQUAL_ACCURACY_DEG, ROOT, compare_with_baseline, extract_revision  # noqa: F401
+from .speed_cases import (N_ACTIONS, Case, GymEnvCase, KernelBatchCase, PlantStepCase, ResetCase,  # noqa: F401
+                          VectorCase, atomic_write, calibrate, log, machine_info, progress, timed)
+from .speed_report import fmt_rate, print_table  # noqa: F401
+
 TARGETS = {   # issue 7, benchmark figures (not timed tests)
     "ratio_etb_vs_gem": 15.0,
     "ratio_etb_vs_pendulum": 0.5,
@@ -105,10 +110,6 @@ def parse_args(argv=None):
     return a
 
 
-from .speed_baseline import EQUAL_ACCURACY_DEG, ROOT, compare_with_baseline, extract_revision  # noqa: E402,F401
-from .speed_cases import (N_ACTIONS, Case, GymEnvCase, KernelBatchCase, PlantStepCase, ResetCase,  # noqa: E402,F401
-                          VectorCase, atomic_write, calibrate, log, machine_info, progress, timed)
-from .speed_report import fmt_rate, print_table  # noqa: E402,F401
 
 
 # ---------------------------------------------------------------------------------------------- main
