@@ -33,6 +33,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from etb_gym.jit import HAVE_NUMBA, kernel
+from etb_gym.threadpool import ensure_thread_pool
 
 from .env import NOISE_BLOCK, RAD2DEG, ETBEnv, sense, step_reward
 from .observation import encode_current_into, encode_into, encode_supply_into
@@ -166,6 +167,7 @@ class _Threads:
         if HAVE_NUMBA:
             import numba
 
+            ensure_thread_pool()      # before numba's pool starts, or it spins (etb_gym/threadpool.py)
             self.prev = numba.get_num_threads()
             if self.prev != self.n:
                 numba.set_num_threads(self.n)

@@ -47,10 +47,14 @@ def case_inputs(plant, case: str):
     raise ValueError(f"case = {case!r}: expected one of {CASES}")
 
 
-def errors(model: str, mode: str, case: str, substeps=SUBSTEPS, reference=None) -> dict:
-    """RMS and max angle error [deg] of the stepper at each substep count against solve_ivp."""
-    base = make_plant(model, pwm_mode=mode)
+def errors(model: str, mode: str, case: str, substeps=SUBSTEPS, reference=None, effects=(),
+           duration_s: float | None = None) -> dict:
+    """RMS and max angle error [deg] of the stepper at each substep count against solve_ivp (``effects``:
+    diagnosis effect components added to the model; ``duration_s``: only the first seconds of the case)."""
+    base = make_plant(model, pwm_mode=mode, effects=effects)
     duty, x0 = case_inputs(base, case)
+    if duration_s is not None:
+        duty = duty[:max(1, int(round(duration_s / base.control_period_s)))]
     ref = base.reference(duty, x0=x0).angle_deg if reference is None else reference
     out = {"model": model, "mode": mode, "case": case, "substeps": list(substeps), "rms_deg": [], "max_deg": []}
     for n in substeps:

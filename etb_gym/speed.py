@@ -49,19 +49,18 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import platform
-import shutil
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
-import tomllib
 import warnings
 from pathlib import Path
 
 import numpy as np
+
+from .speed_baseline import EQUAL_ACCURACY_DEG, ROOT, compare_with_baseline, extract_revision  # noqa: F401
+from .speed_cases import (N_ACTIONS, Case, GymEnvCase, KernelBatchCase, PlantStepCase, ResetCase,  # noqa: F401
+                          VectorCase, atomic_write, calibrate, log, machine_info, progress, timed)
+from .speed_report import fmt_rate, print_table  # noqa: F401
 
 TARGETS = {   # issue 7, benchmark figures (not timed tests)
     "ratio_etb_vs_gem": 15.0,
@@ -71,9 +70,6 @@ TARGETS = {   # issue 7, benchmark figures (not timed tests)
     "reset_us_max": 50.0,
 }
 GEM_ID = "Cont-SC-PermExDc-v0"
-ROOT = Path(__file__).resolve().parents[1]     # the source tree (for --baseline's git archive)
-N_ACTIONS = 4096
-EQUAL_ACCURACY_DEG = 0.044   # RMS angle error of the stepper before issue 12 at 20 substeps, 3B rich excitation
 
 
 def parse_args(argv=None):
@@ -114,204 +110,6 @@ def parse_args(argv=None):
     return a
 
 
-# ---------------------------------------------------------------------------------------------- cases
-class Case:
-    """One measured thing. ``run(n)`` does n iterations and returns the work units done (steps)."""
-
-    key: str
-    label: str
-    unit: str = "steps/s"
-    sim_dt: float | None = None      # simulated seconds per unit (for the real-time factor)
-    fast: bool | None = None         # ETB cases: compiled fast path?
-    n_per_iter: int = 1              # work units per iteration (vector env: N)
-
-    def run(self, n: int) -> int:
-        raise NotImplementedError
-
-    def close(self):
-        pass
-
-
-class GymEnvCase(Case):
-    def __init__(self, key, label, make, seed, sim_dt=None, fast=None):
-        self.key, self.label, self.sim_dt, self.fast = key, label, sim_dt, fast
-        self.env = make()
-        self.env.action_space.seed(seed)
-        self.actions = [self.env.action_space.sample() for _ in range(N_ACTIONS)]
-        self.env.reset(seed=seed)
-        self.k = 0
-
-    def run(self, n):
-        env, acts, k = self.env, self.actions, self.k
-        step, reset = env.step, env.reset
-        for _ in range(n):
-            _, _, term, trunc, _ = step(acts[k])
-            k = (k + 1) % N_ACTIONS
-            if term or trunc:
-                reset()
-        self.k = k
-        return n
-
-    def close(self):
-        self.env.close()
-
-
-class ResetCase(Case):
-    unit = "resets/s"
-
-    def __init__(self, make, seed, fast):
-        self.key, self.label, self.fast = "reset", "reset() (draws a random reference)", fast
-        self.env = make()
-        self.env.reset(seed=seed)
-
-    def run(self, n):
-        reset = self.env.reset
-        for _ in range(n):
-            reset()
-        return n
-
-    def close(self):
-        self.env.close()
-
-
-class VectorCase(Case):
-    unit = "plant-steps/s"
-
-    def __init__(self, env_id, N, env_kw, seed, dt, fast, key=None, label=None):
-        import gymnasium as gym
-
-        self.key, self.label, self.sim_dt, self.fast, self.n_per_iter = key or f"vector_{N}", \
-            label or f"make_vec N={N}", dt, fast, N
-        self.envs = gym.make_vec(env_id, num_envs=N, **env_kw)
-        self.kind = type(self.envs).__name__
-        threads = getattr(self.envs, "num_threads", None)
-        if threads is not None:
-            self.kind += f", {threads} thread(s)"
-        self.envs.action_space.seed(seed)
-        self.actions = [self.envs.action_space.sample() for _ in range(16)]
-        self.envs.reset(seed=seed)
-        self.k = 0
-        self.N = N
-
-    def run(self, n):
-        step, acts, k = self.envs.step, self.actions, self.k
-        for _ in range(n):
-            step(acts[k])
-            k = (k + 1) % 16
-        self.k = k
-        return n * self.N
-
-    def close(self):
-        self.envs.close()
-
-
-class PlantStepCase(Case):
-    unit = "steps/s"
-
-    def __init__(self, plant, seed):
-        self.key, self.label, self.sim_dt, self.fast = "plant_step", "Plant.step (3B core, from Python)", \
-            plant.control_period_s, plant.fast
-        self.plant = plant
-        self.x0 = plant.initial_state()
-        self.x = self.x0.copy()
-        self.aux = np.zeros(len(plant.components))
-        self.duty = np.random.default_rng(seed).uniform(-1, 1, N_ACTIONS).tolist()
-        self.k = 0
-
-    def run(self, n):
-        step, x, aux, duty, k = self.plant.step, self.x, self.aux, self.duty, self.k
-        for _ in range(n):
-            step(x, duty[k], aux=aux)
-            k += 1
-            if k == N_ACTIONS:                 # a new "episode" from rest
-                k = 0
-                x[:] = self.x0
-        self.k = k
-        return n
-
-
-class KernelBatchCase(Case):
-    unit = "plant-steps/s"
-
-    def __init__(self, plant, N, seed):
-        self.key, self.label, self.sim_dt, self.fast, self.n_per_iter = f"kernel_{N}", \
-            f"Plant.step_batch N={N} (no env)", plant.control_period_s, plant.fast, N
-        self.plant, self.N = plant, N
-        rng = np.random.default_rng(seed)
-        self.X0 = np.tile(plant.initial_state(), (N, 1))
-        self.X = self.X0.copy()
-        self.P = np.tile(plant.P, (N, 1))
-        self.AUX = np.zeros((N, len(plant.components)))
-        self.V = np.full(N, plant.supply.voltage_V)
-        self.D = rng.uniform(-1, 1, (64, N))
-        self.k = 0
-
-    def run(self, n):
-        p, X, D = self.plant, self.X, self.D
-        t0 = np.zeros(self.N)
-        for _ in range(n):
-            p.step_batch(X, D[self.k], self.V, self.P, t0, self.AUX)
-            self.k += 1
-            if self.k == len(D):
-                self.k = 0
-                X[:] = self.X0
-        return n * self.N
-
-
-# ---------------------------------------------------------------------------------------------- timing
-def timed(case: Case, n: int):
-    w0, c0 = time.perf_counter(), time.process_time()
-    units = case.run(n)
-    return units, time.perf_counter() - w0, time.process_time() - c0
-
-
-def calibrate(case: Case, seconds: float) -> int:
-    """Warm up (compiles, caches) and find the iteration count of a ~``seconds`` repeat."""
-    n = 1
-    case.run(1)
-    while True:
-        _, wall, _ = timed(case, n)
-        if wall >= 0.05 * seconds or n >= 1 << 22:
-            break
-        n *= 4
-    return max(1, int(n * seconds / max(wall, 1e-9)))
-
-
-def fmt_rate(v):
-    if v is None:
-        return "n/a"
-    return f"{v / 1e6:.3f} M" if v >= 1e6 else f"{v:,.0f}"
-
-
-def atomic_write(path: Path, text: str):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
-
-
-def progress(total, desc):
-    try:
-        from tqdm import tqdm
-
-        return tqdm(total=total, desc=desc, file=sys.stderr, leave=False)
-    except ImportError:  # pragma: no cover - tqdm is a dependency
-        class _P:
-            def update(self, k=1):
-                pass
-
-            def set_postfix_str(self, s):
-                print(s, file=sys.stderr)
-
-            def close(self):
-                pass
-
-        return _P()
-
-
-def log(msg):
-    print(msg, file=sys.stderr, flush=True)
 
 
 # ---------------------------------------------------------------------------------------------- main
@@ -438,128 +236,6 @@ def find_equal_accuracy(args, target_deg: float = EQUAL_ACCURACY_DEG) -> dict:
     return {"substeps": None, "rms_deg": None, "target_deg": target_deg, "tried": tried}
 
 
-def machine_info():
-    info = {"python": platform.python_version(), "machine": platform.machine(), "cpus": os.cpu_count()}
-    try:
-        info["loadavg_1min"] = round(os.getloadavg()[0], 2)
-    except OSError:
-        info["loadavg_1min"] = None
-    try:
-        import numba
-
-        from etb_gym.integrate import ensure_thread_pool
-
-        info["numba"] = numba.__version__
-        info["numba_threads"] = numba.get_num_threads()
-        info["thread_pool"] = ensure_thread_pool()
-        try:
-            info["threading_layer"] = numba.threading_layer()
-        except ValueError:
-            info["threading_layer"] = None
-    except ImportError:
-        info["numba"] = None
-    return info
-
-
-# ---------------------------------------------------------------------------------------------- --baseline
-def extract_revision(rev: str, into: Path) -> tuple[Path, Path]:
-    """REV's source tree (git archive) and an importable package directory for it (the package layout of
-    its pyproject.toml: etb_gym.envs lives in envs/, ...). Returns (source, PYTHONPATH entry)."""
-    src, pkg = into / "src", into / "pkg"
-    src.mkdir(parents=True)
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev], capture_output=True, check=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(src)], input=archive, check=True)
-    layout = tomllib.loads((src / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
-    shutil.copytree(src / layout.get("etb_gym", "etb_gym"), pkg / "etb_gym")
-    for name, path in layout.items():
-        target = pkg / name.replace(".", "/")
-        if name != "etb_gym" and not target.exists():
-            target.symlink_to(src / path, target_is_directory=True)
-    return src, pkg
-
-
-def _flatten(res: dict) -> dict:
-    """The compared figures of one run: name -> value."""
-    out = {k: res[k] for k in ("etb_steps_per_s", "etb_switching_steps_per_s", "reset_us", "pendulum_steps_per_s",
-                               "gem_steps_per_s", "plant_step_us", "kernel_1024_steps_per_s", "ratio_etb_vs_gem",
-                               "ratio_etb_vs_pendulum")}
-    out.update({f"vector_{n}_steps_per_s": v for n, v in res["vector_steps_per_s"].items()})
-    out.update({f"cpu_us_per_step.{k}": v for k, v in res["cpu_us_per_step"].items()})
-    if res.get("vector_steps_per_s_at_equal_accuracy") is not None:
-        out["vector_steps_per_s_at_equal_accuracy"] = res["vector_steps_per_s_at_equal_accuracy"]
-    return out
-
-
-def _medians(runs: list[dict]) -> dict:
-    out = {}
-    for k in runs[0]:
-        values = [r.get(k) for r in runs]
-        out[k] = None if None in values else statistics.median(values)
-    return out
-
-
-def compare_with_baseline(args, eq):
-    common = ["--repeats", "1", "--seconds", str(args.seconds), "--env-id", args.env_id, "--no-reference",
-              "--excitation-s", "0.1", "--seed", str(args.seed), "--num-envs", *map(str, args.num_envs)]
-    common += ["--no-gem"] if args.no_gem else []
-    common += ["--plant", str(Path(args.plant).resolve())] if args.plant else []
-    with tempfile.TemporaryDirectory(prefix="etb_bench_baseline_") as tmp:
-        src, pkg = extract_revision(args.baseline, Path(tmp))
-        env_before = dict(os.environ, PYTHONPATH=str(pkg))
-        extra = [] if args.equal_accuracy_substeps is None else \
-            ["--equal-accuracy-substeps", str(args.equal_accuracy_substeps)]
-        runs = {"before": ([sys.executable, str(src / "scripts" / "bench_speed.py"), *common], env_before),
-                "after": ([sys.executable, "-m", "etb_gym.speed", *common, *extra], dict(os.environ))}
-        results = {k: [] for k in runs}
-        load_start = machine_info().get("loadavg_1min")
-        for r in range(args.repeats):
-            for label, (cmd, env) in runs.items():
-                log(f"--baseline: round {r + 1}/{args.repeats}, {label}")
-                out = subprocess.run(cmd, env=env, cwd=tmp, capture_output=True, text=True)
-                if out.returncode:
-                    raise SystemExit(f"speed --baseline: the {label} run failed:\n{out.stderr[-3000:]}")
-                results[label].append(json.loads(out.stdout.strip().splitlines()[-1]))
-                bar_note = f"{label}: vector N=1024 {results[label][-1]['vector_steps_per_s'].get('1024')}"
-                log(bar_note)
-    load_end = machine_info().get("loadavg_1min")
-    med = {label: _medians([_flatten(r) for r in rs]) for label, rs in results.items()}
-    print(f"\n{args.baseline} (before) vs this tree (after): medians of {args.repeats} alternating rounds of "
-          f"~{args.seconds:g} s per case, load average {load_start} -> {load_end}\n")
-    print("| figure | before | after | after / before |")
-    print("|---|---|---|---|")
-    for k, b in med["before"].items():
-        a = med["after"].get(k)
-        if a is None or b is None:
-            continue
-        fmt = (lambda v: f"{v:.2f}") if (k.endswith("_us") or k.startswith(("cpu", "ratio"))) else fmt_rate
-        print(f"| {k} | {fmt(b)} | {fmt(a)} | {a / b:.2f} |")
-    eq_after = med["after"].get("vector_steps_per_s_at_equal_accuracy")
-    n_max = max(args.num_envs)
-    eq_before = med["before"].get(f"vector_{n_max}_steps_per_s")
-    if eq_after is not None and eq_before is not None:
-        print(f"| make_vec N={n_max} at equal accuracy ({EQUAL_ACCURACY_DEG} deg RMS): before at its 20 substeps, "
-              f"after at {args.equal_accuracy_substeps} | {fmt_rate(eq_before)} | {fmt_rate(eq_after)} | "
-              f"{eq_after / eq_before:.2f} |")
-    res = dict(results["after"][-1])
-    dt = res["etb_sim_s_per_wall_s"] / res["etb_steps_per_s"]      # the control period (of the last run)
-    res.update({k: med["after"][k] for k in ("etb_steps_per_s", "reset_us", "pendulum_steps_per_s", "gem_steps_per_s",
-                                             "ratio_etb_vs_gem", "ratio_etb_vs_pendulum")})
-    res["etb_sim_s_per_wall_s"] = med["after"]["etb_steps_per_s"] * dt
-    res["etb_switching_realtime_factor"] = med["after"]["etb_switching_steps_per_s"] * dt
-    res["vector_steps_per_s"] = {str(n): med["after"][f"vector_{n}_steps_per_s"] for n in args.num_envs}
-    res["baseline"] = {"revision": args.baseline, "medians_before": med["before"], "medians_after": med["after"],
-                       "rounds": args.repeats, "loadavg_1min": [load_start, load_end]}
-    res["substeps_for_0p044_deg"] = args.equal_accuracy_substeps
-    res["equal_accuracy"] = eq
-    res["vector_steps_per_s_at_equal_accuracy"] = eq_after
-    res["ratio_vector_at_equal_accuracy_vs_baseline"] = None if eq_after is None or eq_before is None \
-        else eq_after / eq_before
-    if args.json_out:
-        atomic_write(Path(args.json_out), json.dumps(res, indent=2) + "\n")
-    print(json.dumps(res))
-    return res
-
-
 def run(argv=None) -> dict:
     """The whole measurement; returns the JSON object (also printed as the last line of stdout)."""
     args = parse_args(argv)
@@ -574,6 +250,22 @@ def run(argv=None) -> dict:
     load_start = machine_info().get("loadavg_1min")
     cases, notes, core = build_cases(args)
     bar = progress(len(cases) * (args.repeats + 1) + 3, "etb-gym speed")
+    med, cpu_us, spread = measure(cases, args, bar)
+    exc = excitation_timings(core, args, bar)
+    bar.close()
+    for c in cases:
+        c.close()
+    res = results(args, cases, med, cpu_us, notes, exc, eq, load_start)
+    print_table(cases, med, cpu_us, spread, res)
+    if args.json_out:
+        atomic_write(Path(args.json_out), json.dumps(res, indent=2) + "\n")
+    print(json.dumps(res))
+    return res
+
+
+def measure(cases, args, bar):
+    """Warm up every case, then ``args.repeats`` rounds over all cases (round-robin): medians of the rates, CPU
+    us per unit, and each rate's (min, max)."""
     iters = {}
     for c in cases:
         bar.set_postfix_str(f"warm-up {c.key}")
@@ -588,13 +280,14 @@ def run(argv=None) -> dict:
             rates[c.key].append(units / wall)
             cpu[c.key].append(cpu_s / units)
             bar.update(1)
-    exc = excitation_timings(core, args, bar)
-    bar.close()
-    for c in cases:
-        c.close()
     med = {k: statistics.median(v) for k, v in rates.items()}
     cpu_us = {k: 1e6 * statistics.median(v) for k, v in cpu.items()}
     spread = {k: (min(v), max(v)) for k, v in rates.items()}
+    return med, cpu_us, spread
+
+
+def results(args, cases, med, cpu_us, notes, exc, eq, load_start) -> dict:
+    """The JSON object of one run (figures, ratios, targets, machine)."""
     info = machine_info()
     info["loadavg_1min_start"] = load_start
 
@@ -637,10 +330,6 @@ def run(argv=None) -> dict:
         "switching >= 10x real time": res["etb_switching_realtime_factor"] >= TARGETS["etb_switching_realtime_factor"],
         "reset < 50 us": res["reset_us"] < TARGETS["reset_us_max"],
     }
-    print_table(cases, med, cpu_us, spread, res)
-    if args.json_out:
-        atomic_write(Path(args.json_out), json.dumps(res, indent=2) + "\n")
-    print(json.dumps(res))
     return res
 
 
@@ -648,38 +337,6 @@ def main(argv=None) -> int:
     """``etb-gym speed``: run the harness; 0 on success (argument errors exit 2 through argparse)."""
     run(argv)
     return 0
-
-
-def print_table(cases, med, cpu_us, spread, res):
-    m = res["machine"]
-    print(f"\netb-gym speed, {res['repeats']} repeats of ~{res['seconds_per_repeat']:g} s per case, medians; "
-          f"{m['cpus']} CPUs, load average {m['loadavg_1min_start']} -> {m['loadavg_1min']}, "
-          f"numba {m.get('numba')} threads {m.get('numba_threads')} layer {m.get('threading_layer')} "
-          f"({m.get('thread_pool')})")
-    print("\n| case | path | rate | min..max | CPU us/step | sim s / wall s |")
-    print("|---|---|---|---|---|---|")
-    for c in cases:
-        path = "" if c.fast is None else ("fast (numba)" if c.fast else "**PLAIN (no compiled kernel)**")
-        lo, hi = spread[c.key]
-        real = "" if c.sim_dt is None else f"{med[c.key] * c.sim_dt:,.1f}"   # vector: summed over plants
-        print(f"| {c.label} | {path} | {fmt_rate(med[c.key])} {c.unit} | {fmt_rate(lo)}..{fmt_rate(hi)} | "
-              f"{cpu_us[c.key]:.2f} | {real} |")
-    print(f"\nreset: {res['reset_us']:.1f} us;  Plant.step: {res['plant_step_us']:.2f} us")
-    e = res
-    if e.get("excitation_solve_ivp_s") is not None:
-        print(f"3B rich excitation ({e['excitation_s']:g} s): fast path {e['excitation_fast_s'] * 1e3:.2f} ms, "
-              f"solve_ivp {e['excitation_solve_ivp_s']:.2f} s ({e['excitation_speedup_vs_solve_ivp']:,.0f}x), "
-              f"plain path {e['excitation_plain_s']:.2f} s")
-    else:
-        print(f"3B rich excitation ({e['excitation_s']:g} s): fast path {e['excitation_fast_s'] * 1e3:.2f} ms")
-    g = res["ratio_etb_vs_gem"]
-    print(f"ratios (same run): ETB / gym-electric-motor = {'n/a' if g is None else f'{g:.1f}x'}, "
-          f"ETB / Pendulum-v1 = {res['ratio_etb_vs_pendulum']:.2f}x")
-    print("targets: " + ", ".join(f"{k}: {'n/a' if v is None else ('met' if v else 'NOT met')}"
-                                  for k, v in res["targets"].items()))
-    for n in res["notes"]:
-        print(f"note: {n}")
-    sys.stdout.flush()
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ import pytest
 import etb_gym  # noqa: F401  (registers the ids)
 from etb_gym import MODELS, make_plant
 from etb_gym.accuracy import errors, monotone, observed_order
+from etb_gym.components.effects_mechanical import Backlash, EndStopCompliance
 from etb_gym.integrate import H_MAX_S, substeps_used
 
 
@@ -110,3 +111,17 @@ def test_divergence_raises_at_the_first_nonphysical_state():
     with pytest.raises(FloatingPointError, match="diverged"):
         for _ in range(400):
             p.step(x, -1.0)
+
+
+# ------------------------------------------------------------------------------------ contacts of effects
+@pytest.mark.parametrize("model, effect", [
+    ("1A", Backlash(play_rad=0.02)),                                                  # bounces through the play
+    ("2C", EndStopCompliance(closed_rad=0.015, stiffness_Nm_per_rad=300.0)),          # a softer stop, 0.9 deg open
+])
+def test_bounce_in_an_effects_contact_converges_monotonically_at_second_order(model, effect):
+    """The diagnosis effects that move contacts (backlash: the limp-home band widened by the play; a compliant
+    end stop: other angle and stiffness) declare their edges and impact rate, so a release from 90 deg through
+    them converges monotonically at second order (without the edges: order ~1 for the backlash)."""
+    r = errors(model, "averaged", "release", substeps=(5, 10, 20, 40), effects=[effect], duration_s=0.8)
+    assert monotone(r["rms_deg"]), r
+    assert all(o >= 1.7 for o in r["order"][1:]), r

@@ -99,3 +99,20 @@ def test_wrappers_are_the_one_harness(cmd):
     out = subprocess.run([sys.executable, *cmd, "--help"], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert "--baseline" in out.stdout and "--compare" in out.stdout and "--num-envs" in out.stdout
+
+
+@pytest.mark.skipif(not HAVE_NUMBA, reason="numba")
+def test_vector_env_and_speed_harness_start_a_sleeping_thread_pool():
+    """The vector env asks numba for its thread count before its first batch step; the pool must be configured
+    to sleep before that (a spinning pool cost 5-7x CPU per plant-step on the loaded 2-core machine)."""
+    import os
+    import subprocess
+
+    clean = {k: v for k, v in os.environ.items()
+             if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "NUMBA_THREADING_LAYER")}
+    code = ("import numpy as np, gymnasium as gym, etb_gym, etb_gym.integrate as I; "
+            "e = gym.make_vec('ETB-3B-v0', num_envs=128); e.reset(seed=0); e.step(np.zeros((128, 1), np.float32)); "
+            "from etb_gym.speed import machine_info; print(I.THREAD_POOL + '|' + machine_info()['thread_pool'])")
+    out = subprocess.run([sys.executable, "-c", code], env=clean, capture_output=True, text=True, timeout=300,
+                         check=True).stdout.strip().splitlines()[-1]
+    assert out == "OMP_WAIT_POLICY=PASSIVE|OMP_WAIT_POLICY=PASSIVE"

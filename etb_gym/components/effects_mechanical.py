@@ -11,6 +11,10 @@ parameters (the diagnosis keeps them equal when it refits the nominal parameters
                          T += spring_kernel(phi_LH + d') - spring_kernel(phi)
     end_stop_compliance  stops at other angles / stiffness: T += stops_kernel(new) - stops_kernel(nominal)
     airflow_torque       T = c2 x^2 + c3 x^3,  x = phi / (pi/2)  (aerodynamic torque of the air flow)
+
+The spring and stop corrections declare the angles where their torque jumps (a contact's damping switching
+on) as ``edges`` and the compliant stop its impact ``rate``, so the stepper splits a substep at the crossing
+and cuts impacts into pieces as it does for the plant's own stops and limp-home band (integrate.py, "Contacts").
 """
 from __future__ import annotations
 
@@ -18,11 +22,10 @@ import dataclasses
 import math
 
 from ..jit import kernel
-from .base import non_negative, positive
-from .base import Params
+from .base import Params, crossing, non_negative, positive
 from .effects_electrical import Effect
-from .spring import limp_home_spring_kernel
-from .stops import end_stops_kernel
+from .spring import limp_home_spring_edges, limp_home_spring_kernel
+from .stops import end_stops_edges, end_stops_kernel, end_stops_rate
 
 
 # ------------------------------------------------------------------------------------ spring asymmetry
@@ -48,11 +51,20 @@ def spring_asymmetry_kernel(t, phi, omega, i, u, s, p, ds):
     return tq, 0.0, 0.0
 
 
+@kernel
+def spring_asymmetry_edges(phi0, omega0, phi1, omega1, p):
+    """Where the torque jumps: at phi_LH (the extra spring's damping switches off above it) and phi_LH - eps."""
+    a = crossing(phi0, phi1, p[0])
+    b = crossing(phi0, phi1, p[0] - p[3])
+    return a if a < b else b
+
+
 class SpringAsymmetry(Effect):
     kind = "effect.spring_asymmetry"
     effect_id = "spring_asymmetry"
     Params = SpringAsymmetryParams
     kernel = staticmethod(spring_asymmetry_kernel)
+    edges = staticmethod(spring_asymmetry_edges)
     description = "spring preload or rate differs below and above limp-home"
 
 
@@ -89,11 +101,25 @@ def backlash_kernel(t, phi, omega, i, u, s, p, ds):
     return t1 - t0, 0.0, 0.0
 
 
+@kernel
+def backlash_edges(phi0, omega0, phi1, omega1, p):
+    """Where the torque jumps (integrate.py "Contacts"): the shifted spring damps (c_LH*omega) while
+    |phi - phi_LH| < b + eps (the play and its contact band), the subtracted spring at phi_LH +- eps."""
+    w = p[0] + p[4]
+    a = crossing(phi0, phi1, p[1] - w)
+    b = crossing(phi0, phi1, p[1] + w)
+    c = limp_home_spring_edges(phi0, omega0, phi1, omega1, p[1:6])
+    if b < a:
+        a = b
+    return a if a < c else c
+
+
 class Backlash(Effect):
     kind = "effect.backlash"
     effect_id = "backlash"
     Params = BacklashParams
     kernel = staticmethod(backlash_kernel)
+    edges = staticmethod(backlash_edges)
     description = "free play around limp-home (the return springs engage late)"
 
 
@@ -122,11 +148,27 @@ def end_stop_compliance_kernel(t, phi, omega, i, u, s, p, ds):
     return t1 - t0, 0.0, 0.0
 
 
+@kernel
+def end_stop_compliance_edges(phi0, omega0, phi1, omega1, p):
+    """Where the torque jumps: the true stops (added) and the nominal ones (subtracted)."""
+    a = end_stops_edges(phi0, omega0, phi1, omega1, p[0:4])
+    b = end_stops_edges(phi0, omega0, phi1, omega1, p[4:8])
+    return a if a < b else b
+
+
+@kernel
+def end_stop_compliance_rate(phi, omega, J, p):
+    """The true stops' impact rate sqrt(k/J) (the nominal contact it removes is the plant's EndStops')."""
+    return end_stops_rate(phi, omega, J, p[0:4])
+
+
 class EndStopCompliance(Effect):
     kind = "effect.end_stop_compliance"
     effect_id = "end_stop_compliance"
     Params = EndStopComplianceParams
     kernel = staticmethod(end_stop_compliance_kernel)
+    edges = staticmethod(end_stop_compliance_edges)
+    rate = staticmethod(end_stop_compliance_rate)
     description = "end stops softer or at other angles than modelled"
 
 

@@ -1,0 +1,139 @@
+"""Building the generated stepper (integrate.generate_source): the plain build for CPython, the numba build, and
+numba's on-disk cache of it.
+
+The fast build is written as a module to ``~/.cache/etb_gym/kernels`` (``ETB_GYM_CACHE`` moves it) whose name is a
+digest of the source, the components' kernel modules, numba's version and integrate.STEPPER_REVISION, and
+compiled with ``cache=True``; kernels defined where numba cannot cache from (``__main__``, closures) are
+compiled in memory instead. ``borrow`` is the numba intrinsic that gives the stepper reference-count-free views.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import inspect
+import os
+import sys
+from pathlib import Path
+
+from .jit import HAVE_NUMBA, py_func
+
+
+def kernel_digest(components) -> str:
+    h = hashlib.sha256()
+    for c in components:
+        for fn in (c.kernel, c.advance, c.carry, c.edges, c.plausible, c.rate):
+            if fn is None:
+                continue
+            f = py_func(fn)
+            try:
+                h.update(inspect.getsource(inspect.getmodule(f)).encode())
+            except (OSError, TypeError):
+                h.update(repr(f).encode())
+    return h.hexdigest()
+
+
+def cache_dir() -> Path:
+    d = os.environ.get("ETB_GYM_CACHE")
+    return Path(d) if d else Path.home() / ".cache" / "etb_gym" / "kernels"
+
+
+def is_jitted(fn) -> bool:
+    return fn is not None and hasattr(fn, "py_func") and hasattr(fn, "signatures")
+
+
+def importable(fn) -> bool:
+    f = py_func(fn)
+    mod = sys.modules.get(f.__module__)
+    return mod is not None and f.__module__ != "__main__" and getattr(mod, f.__name__, None) is fn \
+        and "<locals>" not in f.__qualname__
+
+
+def identity(a):
+    return a
+
+
+if HAVE_NUMBA:
+    import numba as _nb
+    from numba.extending import intrinsic as _intrinsic
+    from numba.np.arrayobj import make_array as _make_array
+
+    @_intrinsic
+    def borrow(typingctx, arr):
+        """A view of array argument ``arr`` without a reference count (meminfo NULL).
+
+        Slicing a numba array increments and decrements its reference count atomically; the stepper
+        slices x, P and dx for every kernel call of every substep, and in the parallel batch step all
+        rows share one count, so the threads fought over one cache line. Views of a borrowed array
+        skip the count. Only ever borrow a *function argument* (its caller keeps it alive), never a
+        local temporary."""
+        if not isinstance(arr, _nb.types.Array):
+            return None
+
+        def codegen(context, builder, sig, args):
+            src = _make_array(arr)(context, builder, value=args[0])
+            dst = _make_array(arr)(context, builder)
+            for f in ("nitems", "itemsize", "data", "shape", "strides"):
+                setattr(dst, f, getattr(src, f))
+            dst.meminfo = context.get_constant_null(_nb.types.MemInfoPointer(arr.dtype))
+            dst.parent = context.get_constant_null(_nb.types.pyobject)
+            return dst._getvalue()
+
+        return arr(arr), codegen
+else:  # pragma: no cover
+    borrow = identity
+
+
+def build_plain(source: str, bound: dict) -> dict:
+    """The generated module's namespace, run by CPython with the kernels' pure-Python functions."""
+    ns = {name: py_func(f) for name, f in bound.items()}
+    ns["prange"] = range
+    ns["borrow"] = identity
+    exec(compile(source, "<etb_gym plain stepper>", "exec"), ns)
+    return ns
+
+
+def build_fast(source: str, bound: dict, components, jit_options: dict, revision: str) -> dict:
+    """The generated module's namespace compiled by numba: loaded from the on-disk cache when every bound
+    kernel is importable by name, else compiled in memory."""
+    import numba
+
+    if all(importable(f) for f in bound.values()):
+        try:
+            return load_cached_module(source, bound, components, jit_options, revision)
+        except OSError:
+            pass
+    ns = dict(bound)          # kernels defined somewhere numba cannot cache from: compile in memory
+    ns["prange"] = numba.prange
+    ns["borrow"] = borrow
+    exec(compile(source, "<etb_gym fast stepper>", "exec"), ns)
+    for name, opts in jit_options.items():
+        ns[name] = numba.njit(**opts)(ns[name])
+    return ns
+
+
+def load_cached_module(source: str, bound: dict, components, jit_options: dict, revision: str) -> dict:
+    """Write the decorated source as a module into cache_dir() (once per digest) and import it."""
+    imports = [f"from {py_func(f).__module__} import {py_func(f).__name__} as {name}" for name, f in bound.items()]
+    src = source.replace("import numpy as np\n", "import numpy as np\nfrom numba import njit, prange\n"
+                         "from etb_gym.kernel_cache import borrow\n" + "\n".join(imports) + "\n", 1)
+    for name, opts in jit_options.items():
+        args = ", ".join(f"{k}={v!r}" for k, v in dict(opts, cache=True).items())
+        src = src.replace(f"\ndef {name}(", f"\n@njit({args})\ndef {name}(", 1)
+    import numba
+
+    digest = hashlib.sha256((src + kernel_digest(components) + numba.__version__ + revision)
+                            .encode()).hexdigest()[:20]
+    d = cache_dir()
+    d.mkdir(parents=True, exist_ok=True)
+    path = d / f"etb_kernel_{digest}.py"
+    if not path.exists():
+        from .io import write_atomic
+        write_atomic(path, src, fsync=False)
+    modname = f"etb_gym_kernels.k_{digest}"
+    if modname in sys.modules:
+        return vars(sys.modules[modname])
+    spec = importlib.util.spec_from_file_location(modname, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[modname] = mod
+    spec.loader.exec_module(mod)
+    return vars(mod)
