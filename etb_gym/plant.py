@@ -184,6 +184,20 @@ class Plant:
         return self.engine.fast
 
     @property
+    def state_slices(self) -> tuple:
+        """``(start, stop)`` of each component's own states in the state vector, in ``components`` order."""
+        return self.engine.layout.state_slices
+
+    def stepper(self, path: str = "fast"):
+        """The generated stepper of this composition, for callers that run their own loops (the envs):
+        ``rhs(t, x, u, P, dx, aux)``, ``control_step(x, d, V, P, t0, dt, substeps, switching, f_pwm, aux) -> ok``,
+        ``simulate``, ``batch_step``, ``batch_step_serial``. ``path``: "fast" (compiled when available) or
+        "plain" (pure Python, the same operations). The methods of this class are the checked way in."""
+        if path not in ("fast", "plain"):
+            raise ValueError(f"path = {path!r}: expected 'fast' or 'plain'")
+        return self.engine.fns if path == "fast" else self.engine.plain
+
+    @property
     def limp_home_rad(self):
         return self.spring.params.limp_home_rad if self.spring is not None else 0.0
 

@@ -1,0 +1,168 @@
+"""Digests of env trajectories: a behaviour lock for refactoring the env, the vector env and the plant.
+
+Every case steps an env (single or native vector) with fixed seeds and fixed actions and hashes the
+observations, rewards, episode ends and every info value, bit for bit. ``tests/test_env_digests.py`` compares
+them with ``tests/data/env_digests.json``; a change that alters a trajectory on purpose (a new stepper, a
+changed default) rewrites that file with
+
+    python tests/env_digests.py --write          # (ETB_GYM_DISABLE_JIT=1 checks the plain path: same digests)
+
+and says so in its commit message.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+import etb_gym  # noqa: F401  (registers the ids)
+from etb_gym.jit import HAVE_NUMBA
+from etb_gym.plant import MODELS, Plant, make_plant
+
+DATA = Path(__file__).resolve().parent / "data" / "env_digests.json"
+
+# option sets exercised on the single and the vector env (every observation / sensing / randomization path)
+OPTIONS = {
+    "plain": {},
+    "randomized": dict(randomize=True),
+    "current_supply": dict(observe_current=True, observe_supply=True, randomize=True),
+    "delay_full_state": dict(full_state=True, observe_current=True, reference="pedal",
+                             sensor={"delay_steps": 2, "current_resolution_A": 0.01, "noise_std_rad": 1e-3}),
+    "supply_only_delay1": dict(observe_supply=True, sensor={"delay_steps": 1}, reference="chirp"),
+    "switching": dict(pwm_mode="switching", reference="sine", observe_current=True),
+    "weights_params": dict(reward_weights={"effort": 0.1}, params={"friction.coulomb_Nm": 0.2},
+                           reference={"name": "steps", "values_deg": [10.0, 60.0, 30.0], "dwell_s": 0.01}),
+    "period_2ms": dict(control_period_s=2e-3, randomize={"coil_temperature_C": (-40.0, 125.0),
+                                                         "sensor_noise_std_deg": (0.0, 0.2)}),
+}
+RESET_OPTIONS = {"angle_deg": 20.0, "params": {"friction.coulomb_Nm": 0.15}, "supply_V": 13.5}
+
+
+class Digest:
+    def __init__(self):
+        self.h = hashlib.sha256()
+
+    def add(self, *arrays):
+        for a in arrays:
+            a = np.ascontiguousarray(a)
+            self.h.update(str((a.dtype.str, a.shape)).encode())
+            self.h.update(a.tobytes())
+
+    def info(self, info):
+        for k in sorted(info):
+            self.h.update(k.encode())
+            self.add(np.asarray(info[k]))
+
+    def hex(self):
+        return self.h.hexdigest()[:24]
+
+
+def single(env_id, kw, n_steps, seed, options=None):
+    env = gym.make(env_id, disable_env_checker=True, **kw)
+    dg = Digest()
+    rng = np.random.default_rng(seed + 1000)
+    obs, info = env.reset(seed=seed, options=options)
+    dg.add(obs)
+    dg.info(info)
+    for _ in range(n_steps):
+        obs, r, term, trunc, info = env.step(rng.uniform(-1.3, 1.3, (1,)).astype(np.float32))
+        dg.add(obs, np.float64(r), np.bool_(term), np.bool_(trunc))
+        dg.info(info)
+        if term or trunc:
+            obs, info = env.reset()
+            dg.add(obs)
+            dg.info(info)
+    env.close()
+    return dg.hex()
+
+
+def vector(env_id, kw, n_envs, n_steps, seed, options=None, num_threads=None):
+    env = gym.make_vec(env_id, num_envs=n_envs, num_threads=num_threads, **kw)
+    dg = Digest()
+    rng = np.random.default_rng(seed + 2000)
+    obs, info = env.reset(seed=seed, options=options)
+    dg.add(obs)
+    dg.info(info)
+    for t in range(n_steps):
+        obs, r, term, trunc, info = env.step(rng.uniform(-1.3, 1.3, (n_envs, 1)).astype(np.float32))
+        dg.add(obs, r, term, trunc)
+        dg.info(info)
+        if t == n_steps // 2:
+            mask = np.zeros(n_envs, bool)
+            mask[0] = True
+            obs, info = env.reset(options={"reset_mask": mask})
+            dg.add(obs)
+            dg.info(info)
+    env.close()
+    return dg.hex()
+
+
+def plant_digests():
+    out = {}
+    duty = np.sin(np.linspace(0.0, 40.0, 300)) * 0.8
+    for m in MODELS:
+        p = make_plant(m)
+        tf = p.simulate(duty, angle_deg=10.0, path="fast")
+        tp = p.simulate(duty, angle_deg=10.0, path="plain")
+        dg = Digest()
+        dg.add(tf.states, *[tf.torques_Nm[k] for k in sorted(tf.torques_Nm)])
+        out[f"plant {m} simulate"] = dg.hex()
+        same = np.array_equal(tf.states, tp.states)
+        out[f"plant {m} fast == plain"] = bool(same)
+        d = p.to_dict()
+        out[f"plant {m} to_dict"] = hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:24]
+        q = Plant.from_dict(d)
+        out[f"plant {m} from_dict round trip"] = bool(np.array_equal(q.P, p.P) and q.to_dict() == d)
+    return out
+
+
+def digests(quick: bool = False) -> dict:
+    """{case: digest}. ``quick``: the subset the test suite runs (a few seconds)."""
+    out = {}
+    models = ("1A", "3B") if quick else MODELS
+    for m in models:
+        out[f"single {m} randomized"] = single(f"ETB-{m}-v0", dict(episode_s=0.04, randomize=True), 90, seed=3)
+    for name, kw in OPTIONS.items():
+        kw = dict(kw, episode_s=0.03)
+        out[f"single 3B {name}"] = single("ETB-3B-v0", kw, 70, seed=7)
+        out[f"single 3B {name} reset options"] = single("ETB-3B-v0", kw, 20, seed=8, options=RESET_OPTIONS)
+        n_sets = ((3, None), (6, 1)) if quick or not HAVE_NUMBA else ((3, None), (6, 1), (6, 2))
+        for n, th in n_sets:
+            out[f"vector 3B {name} N={n} threads={th}"] = vector("ETB-3B-v0", kw, n, 70, seed=9, num_threads=th)
+        if not quick:
+            out[f"vector 3B {name} N=5 reset options"] = vector("ETB-3B-v0", kw, 5, 20, seed=10,
+                                                                 options=RESET_OPTIONS)
+    if not quick:
+        for m in MODELS:
+            out[f"vector {m} randomized N=8"] = vector(f"ETB-{m}-v0", dict(episode_s=0.04, randomize=True), 8, 90,
+                                                       seed=4, num_threads=1)
+        out.update(plant_digests())
+    return out
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else argv
+    full = digests(quick=False)
+    quick = digests(quick=True)
+    record = {"quick": quick, "full": full}
+    if "--write" in argv:
+        DATA.parent.mkdir(exist_ok=True)
+        DATA.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+        print(f"wrote {DATA}: {len(full)} + {len(quick)} cases")
+        return 0
+    ref = json.loads(DATA.read_text())
+    bad = [(part, k) for part in ("quick", "full") for k in record[part] if ref[part].get(k) != record[part][k]]
+    missing = [(part, k) for part in ("quick", "full") for k in ref[part] if k not in record[part]]
+    for part, k in bad + missing:
+        print(f"DIFFERS {part}: {k}: {ref[part].get(k)} -> {record[part].get(k)}")
+    print(f"{len(full) + len(quick) - len(bad)} of {len(full) + len(quick)} cases identical"
+          + (f", {len(missing)} missing" if missing else ""))
+    return 1 if bad or missing else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
