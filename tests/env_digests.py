@@ -120,6 +120,48 @@ def plant_digests():
     return out
 
 
+# every effect component with a visible size (zero defaults switch most of them off)
+EFFECTS = {
+    "effect.airflow_torque": {"quadratic_Nm": 0.02, "cubic_Nm": -0.01},
+    "effect.angle_dependent_friction": {"slope_Nm": 0.05, "curvature_Nm": 0.03},
+    "effect.angle_friction_map": {"angle_rad": (0.0, 0.4, 0.9, 1.5), "level_Nm": (0.02, -0.01, 0.05, 0.03)},
+    "effect.angle_torque_map": {"angle_rad": (0.0, 0.3, 0.8, 1.5), "torque_Nm": (0.01, -0.02, 0.03, 0.0)},
+    "effect.backlash": {"play_rad": 0.004},
+    "effect.coil_heating": {},
+    "effect.current_voltage_map": {"current_A": (-3.0, -0.5, 0.5, 3.0), "drop_V": (-0.4, -0.1, 0.15, 0.3)},
+    "effect.end_stop_compliance": {"stiffness_Nm_per_rad": 700.0},
+    "effect.inductance_saturation": {"inductance_drop_H": 5e-4},
+    "effect.shaft_flux_loss": {"loss_at_open_Nm_per_A": 0.01},
+    "effect.speed_friction_map": {"speed_rad_s": (0.0, 0.5, 2.0, 8.0), "opening_Nm": (0.03, 0.01, 0.02, 0.04),
+                                  "closing_Nm": (0.02, 0.02, 0.0, 0.05)},
+    "effect.spring_asymmetry": {"closing_preload_delta_Nm": 0.02, "closing_rate_delta_Nm_per_rad": 0.05},
+    "effect.stribeck_friction": {"stiction_Nm": 0.04},
+    "effect.supply_drop": {"series_resistance_ohm": 0.2, "forward_drop_V": 0.3},
+    "effect.torque_constant_error": {"delta_Nm_per_A": 0.005},
+    "effect.torque_constant_map": {"angle_rad": (0.0, 0.5, 1.5), "delta_Nm_per_A": (0.0, -0.004, 0.006)},
+}
+
+
+def effect_digests():
+    """Each effect component in a 2A and a 3B plant, simulated on the fast and the plain path."""
+    from etb_gym.components.base import REGISTRY
+
+    out = {}
+    duty = np.sin(np.linspace(0.0, 30.0, 250)) * 0.9
+    assert set(EFFECTS) == {k for k in REGISTRY if k.startswith("effect.")}, "add the new effect to EFFECTS"
+    for kind, params in EFFECTS.items():
+        C = REGISTRY[kind]
+        for model in ("2A", "3B"):
+            p = make_plant(model, effects=[C(C.Params(**params))])
+            dg = Digest()
+            tf = p.simulate(duty, angle_deg=20.0, path="fast")
+            dg.add(tf.states, *[tf.torques_Nm[k] for k in sorted(tf.torques_Nm)])
+            out[f"plant {model} + {kind} simulate"] = dg.hex()
+            tp = p.simulate(duty, angle_deg=20.0, path="plain")
+            out[f"plant {model} + {kind} fast == plain"] = bool(np.array_equal(tf.states, tp.states))
+    return out
+
+
 def digests(quick: bool = False) -> dict:
     """{case: digest}. ``quick``: the subset the test suite runs (a few seconds)."""
     out = {}
@@ -141,6 +183,7 @@ def digests(quick: bool = False) -> dict:
             out[f"vector {m} randomized N=8"] = vector(f"ETB-{m}-v0", dict(episode_s=0.04, randomize=True), 8, 90,
                                                        seed=4, num_threads=1)
         out.update(plant_digests())
+        out.update(effect_digests())
     return out
 
 
