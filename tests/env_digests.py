@@ -162,6 +162,28 @@ def effect_digests():
     return out
 
 
+def task_digests():
+    """The RL task's wrappers (etb_gym.rl.wrappers) around the native vector env: direct and residual."""
+    from etb_gym.rl.task import TaskConfig
+    from etb_gym.rl.wrappers import make_task_vec_env
+
+    out = {}
+    for name, task in (("direct", TaskConfig(episode_s=0.05)),
+                       ("residual smc-plain", TaskConfig(residual="smc-plain", episode_s=0.05))):
+        env = make_task_vec_env("ETB-3B-v0", 3, task, seed=4, randomize=True)
+        dg = Digest()
+        obs, _ = env.reset()
+        dg.add(obs)
+        rng = np.random.default_rng(0)
+        for _ in range(70):
+            obs, r, term, trunc, info = env.step(rng.uniform(-1.2, 1.2, 3))
+            dg.add(obs, r, term, trunc)
+            if "final_obs" in info:
+                dg.add(info["final_obs"], info["_final_obs"])
+        out[f"rl task {name} N=3"] = dg.hex()
+    return out
+
+
 def digests(quick: bool = False) -> dict:
     """{case: digest}. ``quick``: the subset the test suite runs (a few seconds)."""
     out = {}
@@ -184,6 +206,7 @@ def digests(quick: bool = False) -> dict:
                                                        seed=4, num_threads=1)
         out.update(plant_digests())
         out.update(effect_digests())
+        out.update(task_digests())
     return out
 
 
