@@ -142,6 +142,23 @@ EFFECTS = {
 }
 
 
+def table_drive_digest():
+    """Drive B with a measured inductance table (components/drive.table_inductance), fast and plain."""
+    from etb_gym.components.drive import InductanceTable
+
+    tab = InductanceTable(current_A=(0.0, 0.5, 1.5, 3.0, 6.0), angle_rad=(0.0, 0.4, 0.9, 1.6),
+                          inductance_H=tuple(tuple(3e-3 * (1.0 - 0.08 * a) / (1.0 + 0.2 * c) for a in range(4))
+                                             for c in range(5)))
+    p = make_plant("3B").with_params({"drive.inductance_table": tab})
+    duty = np.sin(np.linspace(0.0, 25.0, 300))
+    tf = p.simulate(duty, angle_deg=10.0, path="fast")
+    tp = p.simulate(duty, angle_deg=10.0, path="plain")
+    dg = Digest()
+    dg.add(tf.states, tf.torques_Nm["drive"])
+    return {"plant 3B inductance table simulate": dg.hex(),
+            "plant 3B inductance table fast == plain": bool(np.array_equal(tf.states, tp.states))}
+
+
 def effect_digests():
     """Each effect component in a 2A and a 3B plant, simulated on the fast and the plain path."""
     from etb_gym.components.base import REGISTRY
@@ -206,6 +223,7 @@ def digests(quick: bool = False) -> dict:
                                                        seed=4, num_threads=1)
         out.update(plant_digests())
         out.update(effect_digests())
+        out.update(table_drive_digest())
         out.update(task_digests())
     return out
 
