@@ -1,107 +1,40 @@
-"""The ETB Gymnasium environment: track a throttle-angle reference with the H-bridge duty cycle."""
+"""The ETB Gymnasium environment: track a throttle-angle reference with the H-bridge duty cycle.
+
+Its options are checked in :mod:`.options`; its compiled core (stepper, reward, sensing and observation
+constants) is an :class:`~etb_gym.envs.kernel.EnvKernel`, which the native vector env shares.
+"""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any, Mapping
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from etb_gym.components.base import show
-from etb_gym.components.sensor import PositionSensor, PositionSensorParams
-from etb_gym.components.supply import SUPPLY_RANGE_V
-from etb_gym.jit import kernel, py_func
-from etb_gym.plant import MODELS, Plant, make_plant
-from etb_gym.variants import MIN_COIL_TEMPERATURE_C, PlantVariant
+from etb_gym.components.sensor import PositionSensor, PositionSensorParams, delay_push, sense
+from etb_gym.jit import py_func
+from etb_gym.variants import PlantVariant
 
 from . import observation as obsmod
+from . import options as opt
+from .kernel import NOISE_BLOCK, OBS_BOUND, RAD2DEG, TRACKING_SCALE_DEG, EnvKernel, step_reward
+from .options import (DEFAULT_RANDOMIZATION, DEFAULT_REWARD_WEIGHTS, ENV_KWARGS, MAX_EPISODE_STEPS, RESET_OPTIONS,
+                      load_plant_spec)
 from .references import (RANDOM_REFERENCES, PiecewiseLinear, Reference, Steps, as_reference, make_random_task,
                          make_reference)
 
-RAD2DEG = 180.0 / math.pi
-TRACKING_SCALE_DEG = 90.0
-DEFAULT_REWARD_WEIGHTS = {"tracking": 1.0, "effort": 0.02, "chattering": 0.05}
-# per-episode randomization: quantity -> (low, high), drawn uniformly in this order
-DEFAULT_RANDOMIZATION = {
-    "supply_V": (9.0, 16.0),                # battery voltage seen by the bridge [V]
-    "coil_temperature_C": (-40.0, 125.0),   # R(T) = R_20 * (1 + 0.00393 * (T - 20 C))
-    "friction_scale": (0.5, 1.5),           # multiplies all friction torques (T_c, T_s, sigma2)
-    "spring_scale": (0.8, 1.2),             # multiplies spring preload and rate
-    "inertia_scale": (0.9, 1.1),            # multiplies J
-    "sensor_noise_std_deg": (0.0, 0.05),    # white noise of the angle sensor [deg]
-}
-RESET_OPTIONS = ("angle_deg", "reference", "params", "supply_V")
-ENV_KWARGS = ("model", "reference", "episode_s", "control_period_s", "observe_current", "observe_supply",
-              "full_state", "sensor",
-              "plant", "params", "supply_V", "pwm_mode", "randomize", "reward_weights", "render_mode")
-OBS_BOUND = 10.0           # observation box: [-10, 10] except last_duty in [-1, 1]
+# names kept importable from here (this module's public surface before the options and the kernel moved out)
+__all__ = ["ETBEnv", "Episode", "EnvKernel", "DEFAULT_RANDOMIZATION", "DEFAULT_REWARD_WEIGHTS", "ENV_KWARGS",
+           "MAX_EPISODE_STEPS", "NOISE_BLOCK", "OBS_BOUND", "RAD2DEG", "RESET_OPTIONS", "REFERENCE_MARGIN_DEG",
+           "TRACKING_SCALE_DEG", "load_plant_spec", "sense", "step_reward"]
+
 REFERENCE_MARGIN_DEG = 90.0  # references must stay within the end stops +- this margin
-NOISE_BLOCK = 128          # sensor noise is drawn from np_random in blocks of this many control periods
-_ROLE_TORQUE_KEYS = {"drive": "torque_electric_Nm", "friction": "torque_friction_Nm",
-                     "spring": "torque_spring_Nm", "stops": "torque_stops_Nm"}
-
-
-@kernel
-def sense(value, gain, offset, noise, resolution):
-    """One sensor reading: ``resolution * round((gain * value + offset + noise) / resolution)`` (resolution 0:
-    not quantized). The PositionSensor equation (etb_gym.components.sensor) in scalar form, for the angle
-    and (gain 1, offset 0) the current; tested equal to PositionSensor.transform."""
-    v = gain * value + offset + noise
-    if resolution > 0.0:
-        v = resolution * round(v / resolution)
-    return v
-
-
-@kernel
-def step_reward(error_deg, duty, last_duty, w_tracking, w_effort, w_chattering):
-    """The reward of one step (see ETBEnv's docstring); the weights come pre-scaled:
-    ``w_tracking / TRACKING_SCALE_DEG`` and ``w_chattering / 4``."""
-    dd = duty - last_duty
-    return -(w_tracking * abs(error_deg) + w_effort * (duty * duty) + w_chattering * (dd * dd))
-
-
-def load_plant_spec(plant) -> Plant:
-    """A Plant from a path (.toml/.json plant file), a plant description dict, or a Plant."""
-    if isinstance(plant, Plant):
-        return plant
-    if isinstance(plant, (str, Path)):
-        from etb_gym.plantfile import load_plant
-
-        return load_plant(plant)
-    if isinstance(plant, Mapping):
-        return Plant.from_dict(plant)
-    raise ValueError(f"plant = {plant!r}: expected a plant file path (.toml or .json), a plant description "
-                     "dict (Plant.to_dict()) or a Plant")
-
-
-def _finite_number(where, v, lo=-math.inf, hi=math.inf, expected="a finite number"):
-    if isinstance(v, (bool, np.bool_, str, bytes)):         # True is not 1 s, "3" is not 3 V
-        raise ValueError(f"{where} = {show(v)} is invalid: expected {expected}, got {type(v).__name__}")
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where} = {show(v)} is invalid: expected {expected}") from None
-    if not (math.isfinite(f) and lo <= f <= hi):
-        raise ValueError(f"{where} = {show(v)} is invalid: expected {expected}")
-    return f
-
-
-MAX_EPISODE_STEPS = 10_000_000      # the reference is tabulated per episode: bound the memory before allocating
-
 
 # the single env runs the kernels' plain-Python functions: on scalars they beat a compiled call's dispatch
-_sense, _step_reward = py_func(sense), py_func(step_reward)
+_sense, _step_reward, _delay_push = py_func(sense), py_func(step_reward), py_func(delay_push)
 _encode_into, _encode_current_into = py_func(obsmod.encode_into), py_func(obsmod.encode_current_into)
 _encode_supply_into = py_func(obsmod.encode_supply_into)
-
-
-def _flag(name, v) -> bool:
-    """An on/off option: True/False (or 1/0); anything else raises naming the option."""
-    if isinstance(v, (bool, np.bool_)) or (isinstance(v, (int, np.integer)) and v in (0, 1)):
-        return bool(v)
-    raise ValueError(f"{name} = {v!r} is invalid: expected True or False")
 
 
 class Episode:
@@ -227,99 +160,25 @@ class ETBEnv(gym.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r}: expected None or one of {self.metadata['render_modes']}")
         self.render_mode = render_mode
-        # ---- plant
-        if plant is not None:
-            p = load_plant_spec(plant)
-        else:
-            if str(model).strip().upper() not in MODELS:
-                raise ValueError(f"model = {model!r}: expected one of {list(MODELS)}")
-            p = make_plant(model)
-        if pwm_mode is not None and pwm_mode != p.supply.pwm_mode:
-            p = p.replace(supply=p.supply.replace(pwm_mode=pwm_mode))
-        if control_period_s is not None:
-            cp = _finite_number("control_period_s", control_period_s, 1e-6, 1.0, "a period in [1e-6, 1] s")
-            if cp != p.control_period_s:
-                p = p.replace(control_period_s=cp)
-        if params:
-            if not isinstance(params, Mapping):
-                raise ValueError(f"params = {params!r}: expected a dict of 'component.field' overrides")
-            p = p.with_params(dict(params))
-        self.plant = p
+        p = self.plant = opt.build_plant(model, plant, pwm_mode, control_period_s, params)
         self.dt = p.control_period_s
-        self.episode_s = _finite_number("episode_s", episode_s, 0.0, math.inf, "a duration > 0 s")
-        if self.episode_s / self.dt > MAX_EPISODE_STEPS:
-            raise ValueError(f"episode_s = {show(episode_s)} s is {self.episode_s / self.dt:.3g} control periods of "
-                             f"{self.dt:g} s: expected at most {MAX_EPISODE_STEPS:,} per episode "
-                             f"({MAX_EPISODE_STEPS * self.dt:g} s); use shorter episodes")
-        self.max_steps = int(round(self.episode_s / self.dt))
-        if self.max_steps < 1:
-            raise ValueError(f"episode_s = {episode_s!r} is shorter than one control period ({self.dt} s)")
-        self.supply_V = p.supply.voltage_V if supply_V is None else \
-            _finite_number("supply_V", supply_V, *SUPPLY_RANGE_V, "a voltage in [%g, %g] V" % SUPPLY_RANGE_V)
-        # ---- sensor (construction time only; the noise level may be randomized per episode)
-        if sensor is not None and not isinstance(sensor, Mapping):
-            raise ValueError(f"sensor = {sensor!r}: expected a dict of PositionSensorParams overrides")
-        self.sensor = PositionSensor(PositionSensorParams(), **dict(sensor or {}))
-        sp = self.sensor.params
-        self._gain, self._offset, self._q = sp.gain, sp.offset_rad, sp.resolution_rad
-        self._delay = sp.delay_steps
-        self._cur_std, self._cur_q = sp.current_noise_std_A, sp.current_resolution_A
-        self._sup_std, self._sup_q = sp.supply_noise_std_V, sp.supply_resolution_V
-        # ---- reward
-        w = dict(DEFAULT_REWARD_WEIGHTS)
-        if reward_weights is not None:
-            if not isinstance(reward_weights, Mapping):
-                raise ValueError(f"reward_weights = {reward_weights!r}: expected a dict with keys "
-                                 f"{sorted(DEFAULT_REWARD_WEIGHTS)}")
-            bad = sorted(set(reward_weights) - set(w))
-            if bad:
-                raise ValueError(f"reward_weights: unknown key(s) {bad}; valid: {sorted(w)}")
-            for k, v in reward_weights.items():
-                w[k] = _finite_number(f"reward_weights[{k!r}]", v, 0.0, math.inf, "a finite weight >= 0")
-        self.reward_weights = w
-        self._wt, self._we, self._wc = w["tracking"] / TRACKING_SCALE_DEG, w["effort"], w["chattering"] * 0.25
-        # ---- randomization
-        self.randomization = self._check_randomization(randomize)
-        # ---- reference
-        self._reference_spec = reference
-        self._table_cache: dict = {}
-        self._fixed_reference = self._random_task = None           # one of them, validated now
-        if self._is_random_spec(reference):
-            self._random_task = self._make_random_task(reference)
-        else:
-            self._fixed_reference = self._build_reference(reference, None)
-        # ---- spaces
-        self.observe_current, self.full_state = _flag("observe_current", observe_current), bool(full_state)
-        self.observe_supply = _flag("observe_supply", observe_supply)
-        self._supply_index = 4 + self.observe_current
-        self._noise_cols = 2 + self.observe_supply      # angle, current (, supply) noise per control period
-        self.state_scales = self._state_scales(p)
-        self._inv_scales = 1.0 / self.state_scales
-        n_obs = 4 + self.observe_current + self.observe_supply + (p.n_states if self.full_state else 0)
-        self.n_obs = n_obs
+        self.episode_s, self.max_steps = opt.episode_steps(episode_s, self.dt)
+        self.supply_V = p.supply.voltage_V if supply_V is None else opt.voltage("supply_V", supply_V)
+        # the sensor is set at construction only; its noise level may be randomized per episode
+        self.sensor = PositionSensor(PositionSensorParams(), **opt.sensor_overrides(sensor))
+        self.reward_weights = opt.reward_weights(reward_weights)
+        self.randomization = opt.randomization(randomize)
+        self._init_reference(reference)
+        self.observe_current, self.full_state = opt.flag("observe_current", observe_current), bool(full_state)
+        self.observe_supply = opt.flag("observe_supply", observe_supply)
+        k = self.kernel = EnvKernel.build(p, self.sensor.params, self.reward_weights, max_steps=self.max_steps,
+                                          observe_current=self.observe_current,
+                                          observe_supply=self.observe_supply, full_state=self.full_state)
+        self.n_obs = k.n_obs
+        self.state_scales = k.state_scales
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
-        low = np.full(n_obs, -OBS_BOUND, np.float32)
-        low[3] = -1.0
-        self.observation_space = spaces.Box(low, -low, (n_obs,), np.float32)
-        self._obs_low, self._obs_high = self.observation_space.low, self.observation_space.high
-        # only a plant without end stops or the full state can leave the box: clip then (documented)
-        self._clip_obs = p.stops is None or self.full_state
-        # ---- constants of the stepper
-        fns = p.engine.fns
-        self._control_step, self._rhs = fns.control_step, fns.rhs
-        self._nsub, self._sw, self._fpwm = p.substeps, p.supply.switching, p.supply.pwm_frequency_hz
-        self._P_nominal = p.P.copy()
-        self._P_nominal.setflags(write=False)
-        self._nominal = p.params_dict()
-        self._t_grid = np.arange(self.max_steps + 1) * self.dt
-        self._x0_cache: dict = {}
-        self._dx = np.empty(p.n_states)
-        roles = {r: (p.component_names.index(r) if r in p.component_names else -1) for r in _ROLE_TORQUE_KEYS}
-        self._torque_index = tuple((_ROLE_TORQUE_KEYS[r], k) for r, k in roles.items())
-        self._effect_torques = tuple((f"torque_{n}_Nm", k) for k, n in enumerate(p.component_names)
-                                     if n not in _ROLE_TORQUE_KEYS)
-        self._lo_deg, self._hi_deg = p.angle_min_rad * RAD2DEG, p.angle_max_rad * RAD2DEG
-        self._default_angle_deg = p.limp_home_rad * RAD2DEG
+        self.observation_space = spaces.Box(k.obs_low.copy(), k.obs_high.copy(), (k.n_obs,), np.float32)
+        self._init_constants(k)
         # ---- episode state (set by reset)
         self._x = p.initial_state()
         self._aux = np.zeros(len(p.components))
@@ -328,53 +187,36 @@ class ETBEnv(gym.Env):
         self._renderer = None
         self._hist = None
 
-    # ------------------------------------------------------------------------------ configuration helpers
-    @staticmethod
-    def _state_scales(p: Plant) -> np.ndarray:
-        """Scale of each state for the full-state observation: angle pi/2 rad, velocity 50 rad/s, current 10 A,
-        friction bristle deflection T_s/sigma0 (the presliding range), any other state 1."""
-        scales = np.ones(p.n_states)
-        scales[0], scales[1], scales[2] = math.pi / 2, 50.0, obsmod.CURRENT_SCALE_A
-        lay = p.engine.layout
-        for k, c in enumerate(p.components):
-            s0, s1 = lay.state_slices[k]
-            q = c.params
-            if s1 > s0 and hasattr(q, "bristle_stiffness_Nm_per_rad"):
-                top = getattr(q, "static_Nm", getattr(q, "coulomb_Nm", 0.0))
-                if top > 0:
-                    scales[s0:s1] = top / q.bristle_stiffness_Nm_per_rad
-        return scales
+    def _init_reference(self, reference):
+        self._reference_spec = reference
+        self._table_cache: dict = {}
+        self._fixed_reference = self._random_task = None           # one of them, validated now
+        if self._is_random_spec(reference):
+            self._random_task = self._make_random_task(reference)
+        else:
+            self._fixed_reference = self._build_reference(reference, None)
 
-    def _check_randomization(self, randomize):
-        if randomize is False or randomize is None:
-            return {}
-        if randomize is True:
-            return dict(DEFAULT_RANDOMIZATION)
-        if not isinstance(randomize, Mapping):
-            raise ValueError(f"randomize = {randomize!r}: expected False, True or a dict {{quantity: (low, high)}} "
-                             f"with quantities from {list(DEFAULT_RANDOMIZATION)}")
-        out = {}
-        for k, v in randomize.items():
-            if k not in DEFAULT_RANDOMIZATION:
-                raise ValueError(f"randomize: unknown quantity {k!r}; valid: {list(DEFAULT_RANDOMIZATION)}")
-            try:
-                lo, hi = (float(x) for x in v)
-            except (TypeError, ValueError):
-                raise ValueError(f"randomize[{k!r}] = {v!r}: expected a (low, high) pair of numbers") from None
-            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
-                raise ValueError(f"randomize[{k!r}] = {v!r}: expected finite low <= high")
-            if k != "coil_temperature_C" and lo < 0:
-                raise ValueError(f"randomize[{k!r}] = {v!r}: expected non-negative bounds")
-            if k in ("supply_V", "inertia_scale") and lo <= 0:
-                raise ValueError(f"randomize[{k!r}] = {v!r}: expected bounds > 0")
-            if k == "supply_V" and not (SUPPLY_RANGE_V[0] <= lo and hi <= SUPPLY_RANGE_V[1]):
-                raise ValueError(f"randomize[{k!r}] = {v!r}: expected voltages in [%g, %g] V" % SUPPLY_RANGE_V)
-            if k == "coil_temperature_C" and lo <= MIN_COIL_TEMPERATURE_C:
-                raise ValueError(f"randomize[{k!r}] = {v!r}: expected temperatures above "
-                                 f"{MIN_COIL_TEMPERATURE_C:.0f} C (R > 0)")
-            out[k] = (lo, hi)
-        return {k: out[k] for k in DEFAULT_RANDOMIZATION if k in out}   # canonical draw order
+    def _init_constants(self, k: EnvKernel):
+        """Local copies of the kernel's constants for the per-step code (attribute reads on self are cheaper)."""
+        p = k.plant
+        self._control_step, self._rhs = k.control_step, k.rhs
+        self._nsub, self._sw, self._fpwm = k.substeps, k.switching, k.pwm_frequency_hz
+        self._wt, self._we, self._wc = (float(w) for w in k.reward_weights)
+        self._gain, self._offset, self._q, self._cur_std, self._cur_q, self._sup_std, self._sup_q = \
+            (float(v) for v in k.sensor)
+        self._supply_index = k.supply_index
+        self._inv_scales = 1.0 / k.state_scales
+        self._obs_low, self._obs_high = k.obs_low, k.obs_high
+        self._clip_obs = k.clip_obs
+        self._P_nominal = k.P_nominal
+        self._nominal = p.params_dict()
+        self._t_grid = np.arange(self.max_steps + 1) * self.dt
+        self._x0_cache: dict = {}
+        self._dx = np.empty(p.n_states)
+        self._lo_deg, self._hi_deg = p.angle_min_rad * RAD2DEG, p.angle_max_rad * RAD2DEG
+        self._default_angle_deg = p.limp_home_rad * RAD2DEG
 
+    # ------------------------------------------------------------------------------ references
     @staticmethod
     def _is_random_spec(spec) -> bool:
         if isinstance(spec, str):
@@ -446,29 +288,14 @@ class ETBEnv(gym.Env):
     def draw_episode(self, rng: np.random.Generator, options: Mapping | None = None) -> Episode:
         """Everything a reset decides, drawn from ``rng`` in a fixed order (randomization, then reference).
         Shared by the single env and the vector env so that both draw identically."""
-        opts = {} if options is None else options
-        if opts.__class__ is not dict and not isinstance(opts, Mapping):     # (typing's isinstance is slow)
-            raise ValueError(f"reset options = {opts!r}: expected a dict with keys from {list(RESET_OPTIONS)}")
-        if opts:
-            bad = sorted(set(opts) - set(RESET_OPTIONS))
-            if bad:
-                raise ValueError(f"reset: unknown option(s) {bad}; valid: {list(RESET_OPTIONS)}")
+        opts = opt.reset_options(options)
         angle = opts.get("angle_deg")
         if angle is None:
             angle = self._default_angle_deg
         else:
-            angle = _finite_number("options['angle_deg']", angle, self._lo_deg, self._hi_deg,
-                                   f"an angle within the end stops [{self._lo_deg:g}, {self._hi_deg:g}] deg")
-        overrides = {}
-        params = opts.get("params")
-        if params:
-            if not isinstance(params, Mapping):
-                raise ValueError(f"options['params'] = {params!r}: expected a dict of 'component.field' overrides")
-            for key in params:
-                if isinstance(key, str) and key.startswith("supply."):
-                    raise ValueError(f"options['params'][{key!r}]: the supply is set per episode with "
-                                     "options['supply_V'] (and at construction with supply_V= / pwm_mode=)")
-            overrides.update(params)
+            angle = opt.finite_number("options['angle_deg']", angle, self._lo_deg, self._hi_deg,
+                                      f"an angle within the end stops [{self._lo_deg:g}, {self._hi_deg:g}] deg")
+        overrides = opt.episode_params(opts.get("params"))
         V = self.supply_V
         noise = self.sensor.params.noise_std_rad
         draws = {}
@@ -481,8 +308,7 @@ class ETBEnv(gym.Env):
             if "sensor_noise_std_deg" in draws:
                 noise = draws["sensor_noise_std_deg"] / RAD2DEG
         if opts.get("supply_V") is not None:
-            V = _finite_number("options['supply_V']", opts["supply_V"], *SUPPLY_RANGE_V,
-                               "a voltage in [%g, %g] V" % SUPPLY_RANGE_V)
+            V = opt.voltage("options['supply_V']", opts["supply_V"])
         P = self.plant.param_vector(overrides) if overrides else self._P_nominal
         spec = opts.get("reference")
         if spec is not None:
@@ -503,15 +329,11 @@ class ETBEnv(gym.Env):
     # ------------------------------------------------------------------------------ sensing
     def _read_angle(self, phi):
         """Sensed angle [rad] of true angle ``phi`` (delayed, noisy, quantized) and the noise row used."""
-        if self._delay:
-            buf, j = self._dbuf, self._dpos
-            old = buf[j]
-            buf[j] = phi
-            self._dpos = (j + 1) % len(buf)
-            phi = old
+        if self._dbuf:
+            phi, self._dpos = _delay_push(self._dbuf, self._dpos, phi)
         pos = self._npos
         if pos == NOISE_BLOCK:
-            self._noise = self.np_random.standard_normal((NOISE_BLOCK, self._noise_cols))
+            self._noise = self.np_random.standard_normal((NOISE_BLOCK, self.kernel.noise_cols))
             pos = 0
         self._npos = pos + 1
         return _sense(phi, self._gain, self._offset, self._noise_std * self._noise.item(pos, 0), self._q), pos
@@ -533,11 +355,9 @@ class ETBEnv(gym.Env):
         self._k = 0
         self._duty = 0.0
         self._rhs(0.0, x, 0.0, ep.P, self._dx, self._aux)
-        phi = x.item(0)
-        if self._delay:
-            self._dbuf = [phi] * (self._delay + 1)
-            self._dpos = 0
-        self._noise = self.np_random.standard_normal((NOISE_BLOCK, self._noise_cols))
+        self._dbuf = [x.item(0)] * self.kernel.delay_length      # the delay line (delay_push), a list here
+        self._dpos = 0
+        self._noise = self.np_random.standard_normal((NOISE_BLOCK, self.kernel.noise_cols))
         self._npos = 0
         r = self._tab.item(0)
         obs, info = self._observe(x, r, 0.0, 0.0)
@@ -565,10 +385,8 @@ class ETBEnv(gym.Env):
         aux = self._aux
         info = {"angle_deg": phi * RAD2DEG, "sensed_angle_deg": s_deg, "velocity_deg_s": omega * RAD2DEG,
                 "current_A": i, "voltage_V": d * self._V, "duty": d, "reference_deg": r, "supply_V": self._V}
-        for key, k in self._torque_index:
+        for key, k in self.kernel.info_torques:
             info[key] = aux.item(k) if k >= 0 else 0.0
-        for key, k in self._effect_torques:
-            info[key] = aux.item(k)
         info["t_s"] = t
         return obs, info
 

@@ -124,7 +124,6 @@ class ETBRenderer:
         return frame
 
     def _show(self, frame):
-        import matplotlib
         import matplotlib.pyplot as plt
 
         if _interactive_backend():

@@ -9,8 +9,10 @@ bit (tests/test_envs_vector.py): sub-env k owns a generator seeded like ``SyncVe
 (``seed + k``), draws its episodes with the single env's :meth:`ETBEnv.draw_episode`, and reads its
 sensor from noise blocks drawn in the same order. The plants advance together through
 ``Plant.step_batch``; reward, sensing, observation and info of all sub-envs are then one compiled loop
-(:func:`step_rewards`, :func:`observe_rows`) that calls the single env's kernels (``env.step_reward``,
-``env.sense``, ``observation.encode_into``) per sub-env.
+(:func:`step_rewards`, :func:`observe_rows`) that calls the single env's kernels (``step_reward``,
+``sense``, ``delay_push``, ``observation.encode_into``) per sub-env. All it takes from the single env is its
+public :class:`~etb_gym.envs.kernel.EnvKernel` (``env.kernel``: stepper, constants, observation layout) and
+its episode draws (tests/test_envs_vector.py checks that this module reads no private attribute of it).
 Autoreset is Gymnasium's default ``NEXT_STEP`` mode: the step after a sub-env is truncated resets it
 (its action is ignored, reward 0) and returns the reset observation and info. ``info`` is a dict of arrays
 with ``_key`` masks, as ``SyncVectorEnv`` builds it. Rendering is not supported here (use
@@ -32,16 +34,16 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from etb_gym.components.sensor import delay_push, sense
 from etb_gym.jit import HAVE_NUMBA, kernel
 from etb_gym.threadpool import ensure_thread_pool
 
-from .env import NOISE_BLOCK, RAD2DEG, ETBEnv, sense, step_reward
+from .env import ETBEnv
+from .kernel import INFO_KEYS, NOISE_BLOCK, RAD2DEG, step_reward
 from .observation import encode_current_into, encode_into, encode_supply_into
 
 SERIAL_UP_TO = 4      # up to this many plants: the single env's compiled control step in a loop
 PARALLEL_FROM = 64    # below this many plants one thread is faster than waking numba's thread pool
-INFO_KEYS = ("angle_deg", "sensed_angle_deg", "velocity_deg_s", "current_A", "voltage_V", "duty", "reference_deg",
-             "supply_V")   # then the torques (ETBEnv._torque_index, _effect_torques), then "t_s"
 
 
 # ---------------------------------------------------------------------------------------------- compiled loops
@@ -86,18 +88,11 @@ def observe_rows(rows, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps,
     column of each torque key (-1: no such component, 0). Returns how many of the rows used up their noise
     block (the caller draws the next block before their next reading, as the single env does)."""
     used_up = 0
-    n_delay = delay_buf.shape[1]
     n_obs = obs.shape[1]
     n_x = state_scale.shape[0]
     for j in range(rows.shape[0]):
         b = rows[j]
-        phi = X[b, 0]
-        phi_read = phi
-        if n_delay > 1:
-            p = delay_pos[b]
-            phi_read = delay_buf[b, p]
-            delay_buf[b, p] = phi
-            delay_pos[b] = (p + 1) % n_delay
+        phi_read, delay_pos[b] = delay_push(delay_buf[b], delay_pos[b], X[b, 0])
         pos = min(noise_pos[b], NOISE_BLOCK - 1)    # past the end only in rows about to be reset (outputs replaced)
         noise_pos[b] = pos + 1
         if pos + 1 == NOISE_BLOCK:
@@ -198,6 +193,7 @@ class ETBVectorEnv(VectorEnv):
                              "use gym.make_vec(..., vectorization_mode='sync') to render sub-envs")
         kwargs.pop("render_mode", None)
         self.env = env = ETBEnv(**kwargs)       # configuration and episode draws (never stepped)
+        self.kernel = kn = env.kernel
         self.num_envs = N = int(num_envs)
         self.render_mode = None
         self.single_observation_space = env.observation_space
@@ -211,28 +207,25 @@ class ETBVectorEnv(VectorEnv):
         self._episodes: list = [None] * N
         self._X = np.zeros((N, p.n_states))
         self._AUX = np.zeros((N, len(p.components)))
-        self._P = np.tile(env._P_nominal, (N, 1))
+        self._P = np.tile(kn.P_nominal, (N, 1))
         self._V = np.full(N, env.supply_V)
         self._K = np.zeros(N, np.int64)
         self._t0 = np.zeros(N)
         self._d = np.zeros(N)                   # this step's applied duty
         self._duty = np.zeros(N)                # the previous step's
         self._tab = np.zeros((N, env.max_steps + 1))
-        self._noise = np.zeros((N, NOISE_BLOCK, env._noise_cols))
+        self._noise = np.zeros((N, NOISE_BLOCK, kn.noise_cols))
         self._npos = np.zeros(N, np.int64)
         self._noise_std = np.zeros(N)
-        self._dbuf = np.zeros((N, env._delay + 1))
+        self._dbuf = np.zeros((N, kn.delay_length))     # the delay lines (delay_push)
         self._dpos = np.zeros(N, np.int64)
         self._autoreset = np.zeros(N, bool)
         self._refill_pending = False
         self._rows = np.arange(N)
         self._dx = np.empty(p.n_states)
         # constants of the compiled loops
-        self._weights = np.array([env._wt, env._we, env._wc])
-        self._sensor = np.array([env._gain, env._offset, env._q, env._cur_std, env._cur_q, env._sup_std,
-                                 env._sup_q])
-        self._state_scale = env._inv_scales if env.full_state else np.zeros(0)
-        torques = env._torque_index + env._effect_torques
+        self._state_scale = kn.observed_state_scale
+        torques = kn.info_torques
         self._info_cols = np.array([k for _, k in torques], np.int64)
         self._info_keys = tuple((key, "_" + key) for key in INFO_KEYS + tuple(key for key, _ in torques) + ("t_s",))
         self._started = False
@@ -254,7 +247,7 @@ class ETBVectorEnv(VectorEnv):
             self._noise_std[i] = ep.noise_std_rad
             self._K[i] = 0
             self._duty[i] = 0.0
-            env._rhs(0.0, self._X[i], 0.0, self._P[i], self._dx, self._AUX[i])
+            self.kernel.rhs(0.0, self._X[i], 0.0, self._P[i], self._dx, self._AUX[i])
             self._dbuf[i] = self._X[i, 0]
             self._dpos[i] = 0
             rng.standard_normal(out=self._noise[i])
@@ -272,13 +265,13 @@ class ETBVectorEnv(VectorEnv):
     # ------------------------------------------------------------------------------ sensing and outputs
     def _observe(self, rows):
         """Observations (n, n_obs) and info matrix (n_info, n) of sub-envs ``rows`` (int64 index array)."""
-        env = self.env
-        obs = np.empty((rows.size, env.n_obs), np.float32)
+        kn = self.kernel
+        obs = np.empty((rows.size, kn.n_obs), np.float32)
         info = np.empty((len(self._info_keys), rows.size))
-        used_up = observe_rows(rows, self._X, self._AUX, self._duty, self._V, self._K, env.dt, self._tab,
-                               env.max_steps, self._dbuf, self._dpos, self._noise, self._npos, self._noise_std,
-                               self._sensor, env.observe_current, env.observe_supply, self._state_scale,
-                               env._clip_obs, env._obs_low, env._obs_high, self._info_cols, obs, info)
+        used_up = observe_rows(rows, self._X, self._AUX, self._duty, self._V, self._K, kn.dt, self._tab,
+                               kn.max_steps, self._dbuf, self._dpos, self._noise, self._npos, self._noise_std,
+                               kn.sensor, kn.observe_current, kn.observe_supply, self._state_scale,
+                               kn.clip_obs, kn.obs_low, kn.obs_high, self._info_cols, obs, info)
         self._refill_pending |= used_up > 0
         return obs, info
 
@@ -291,13 +284,13 @@ class ETBVectorEnv(VectorEnv):
         return out
 
     def _step_plants(self, d):
-        env, N = self.env, self.num_envs
-        t0 = np.multiply(self._K, env.dt, out=self._t0)
+        kn, N = self.kernel, self.num_envs
+        t0 = np.multiply(self._K, kn.dt, out=self._t0)
         if N <= SERIAL_UP_TO:     # a parallel region costs more than a few plants
             ok = np.empty(N, bool)
-            cs, X, V, P, A = env._control_step, self._X, self._V, self._P, self._AUX
+            cs, X, V, P, A = kn.control_step, self._X, self._V, self._P, self._AUX
             for i in range(N):
-                ok[i] = cs(X[i], d[i], V[i], P[i], t0[i], env.dt, env._nsub, env._sw, env._fpwm, A[i])
+                ok[i] = cs(X[i], d[i], V[i], P[i], t0[i], kn.dt, kn.substeps, kn.switching, kn.pwm_frequency_hz, A[i])
             return ok
         if self.num_threads == 1:
             return self.plant.step_batch(self._X, d, self._V, self._P, t0, self._AUX, parallel=False)
@@ -360,7 +353,8 @@ class ETBVectorEnv(VectorEnv):
                                      + self.plant.divergence_message(self._X[k], (self._K[k] + 1) * env.dt))
         reward = np.empty(N)
         trunc = np.empty(N, bool)
-        step_rewards(d, self._duty, self._X, self._K, self._tab, env.max_steps, self._weights, reward, trunc)
+        step_rewards(d, self._duty, self._X, self._K, self._tab, env.max_steps, self.kernel.reward_weights, reward,
+                     trunc)
         if self._refill_pending:
             self._refill_noise()
         obs, info = self._observe(self._rows)

@@ -55,6 +55,19 @@ def subplots(nrows: int = 1, ncols: int = 1, **kw):
     return fig, fig.subplots(nrows, ncols, **kw)
 
 
+def panel(ax, ylabel: str, *, xlabel: str | None = None, ylim=None, legend: dict | None = None) -> None:
+    """One panel of a paper figure, after its curves are drawn: axis labels, limits, legend (``ax.legend``
+    keywords) and the figures' light grid."""
+    ax.set_ylabel(ylabel)
+    if xlabel is not None:
+        ax.set_xlabel(xlabel)
+    if ylim is not None:
+        ax.set_ylim(*ylim)
+    if legend is not None:
+        ax.legend(**legend)
+    ax.grid(alpha=0.3)
+
+
 def save_png(fig, path: Path, dpi: int) -> None:
     """Write a figure atomically (one helper: etb_gym.io.write_atomic)."""
     write_atomic(path, lambda fh: fig.savefig(fh, format="png", dpi=dpi))
@@ -102,14 +115,9 @@ def fig08(out: Path, s: Settings):
                    label=lbl)
     ax[0].axhline(30, color="0.6", lw=0.8, ls=":")
     ax[0].text(t_ms[0] + 1, 31, "30 deg", ha="left", va="bottom", color="0.4", fontsize=8)
-    ax[0].set_ylabel("angle phi [deg]")
-    ax[0].set_ylim(-3, 95)
-    ax[0].legend(loc="lower right")
-    ax[1].set_ylabel("coil current i [A]")
-    ax[2].set_ylabel("electric torque T_el [mNm]")
-    ax[2].set_xlabel("time [ms]")
-    for a in ax:
-        a.grid(alpha=0.3)
+    panel(ax[0], "angle phi [deg]", ylim=(-3, 95), legend=dict(loc="lower right"))
+    panel(ax[1], "coil current i [A]")
+    panel(ax[2], "electric torque T_el [mNm]", xlabel="time [ms]")
     ax[0].set_title(f"Paper Fig. 8 analogue: electric subsystem alone, J*phi'' = T_el (eq. 15), u = {u} V\n"
                     "no spring, no friction; end stops at 0 and 90 deg")
     path = out / "fig08_electric_drive.png"
@@ -154,23 +162,20 @@ def fig12(out: Path, s: Settings):
     t = r.t_s[sl]
     fig, ax = subplots(3, 1, figsize=(8, 7.5), sharex=True, constrained_layout=True)
     ax[0].plot(t, r.voltage_V[sl], color="tab:purple")
-    ax[0].set_ylabel("input voltage u_SP [V]")
+    panel(ax[0], "input voltage u_SP [V]")
     ax[1].plot(t, r.angle_deg[sl], color="tab:blue", label="angle phi")
     ax[1].axhline(start_deg, color="0.5", lw=0.8, ls=":", label=f"start {start_deg:g} deg")
-    ax[1].set_ylim(start_deg - 0.1, start_deg + max(3 * pre_deg, 0.4))
-    ax[1].set_ylabel("angle phi [deg] (zoomed)")
-    ax[1].legend(loc="upper left")
+    panel(ax[1], "angle phi [deg] (zoomed)", ylim=(start_deg - 0.1, start_deg + max(3 * pre_deg, 0.4)),
+          legend=dict(loc="upper left"))
     ax[2].plot(t, applied[sl], color="tab:orange", label="applied T_el - T_sp")
     ax[2].plot(t, friction[sl], color="tab:blue", ls="--", label="friction T_f (LuGre)")
     ax[2].axhline(fr.static_Nm, color="tab:red", lw=0.8, ls=":", label=f"T_s = {fr.static_Nm:g} Nm")
     ax[2].axhline(fr.coulomb_Nm, color="0.4", lw=0.8, ls="-.", label=f"T_c = {fr.coulomb_Nm:g} Nm")
-    ax[2].set_ylim(min(applied[sl].min(), friction[sl].min()) - 0.02, fr.static_Nm + 0.04)
-    ax[2].set_ylabel("torque [Nm]")
-    ax[2].set_xlabel("time [s]")
-    ax[2].legend(loc="upper left", ncol=2, fontsize=8)
+    panel(ax[2], "torque [Nm]", xlabel="time [s]",
+          ylim=(min(applied[sl].min(), friction[sl].min()) - 0.02, fr.static_Nm + 0.04),
+          legend=dict(loc="upper left", ncol=2, fontsize=8))
     for a in ax:
         a.axvline(t_brk, color="tab:red", lw=1.0)
-        a.grid(alpha=0.3)
     ax[1].annotate(f"breakaway t = {t_brk:.2f} s\npresliding {pre_deg:.2f} deg",
                    xy=(t_brk, r.angle_deg[k_brk]), xytext=(-12, 0), textcoords="offset points",
                    ha="right", va="center", color="tab:red", fontsize=9)
@@ -217,11 +222,7 @@ def fig13(out: Path, s: Settings):
     ax.axhline(lh + b2, color="tab:orange", lw=1.0, ls="--",
                label=f"Dahl band edge phi_LH + (T_c - T_SP0)/R_F = {lh + b2:.1f} deg")
     ax.axhline(lh, color="k", lw=0.8, ls=":", label=f"limp-home phi_LH = {lh:g} deg")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("angle phi [deg]")
-    ax.set_ylim(-2, 92)
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper right", fontsize=9)
+    panel(ax, "angle phi [deg]", xlabel="time [s]", ylim=(-2, 92), legend=dict(loc="upper right", fontsize=9))
     ax.set_title("Paper Fig. 13 analogue: release from 90 deg at zero voltage (duty 0), drive B\n"
                  "spring closes the plate, friction stops it in the limp-home dead band (models only)")
     path = out / "fig13_release.png"
@@ -260,15 +261,9 @@ def step_figure(models, volts, s: Settings, title: str):
                    label=f"{m}, u_SP = {v:g} V")
         if m == models[0]:
             ax[1].plot(r.t_s[1:], r.voltage_V[1:], color=VOLT_COLORS[v], label=f"{v:g} V")
-    ax[0].set_ylabel("angle phi [deg]")
-    ax[0].set_ylim(0, 92)
-    ax[0].legend(loc="upper left", ncol=2, fontsize=9)
+    panel(ax[0], "angle phi [deg]", ylim=(0, 92), legend=dict(loc="upper left", ncol=2, fontsize=9))
     ax[0].set_title(title)
-    ax[1].set_ylabel("u_SP [V]")
-    ax[1].set_xlabel("time [s]")
-    ax[1].set_ylim(-0.5, max(volts) + 1)
-    for a in ax:
-        a.grid(alpha=0.3)
+    panel(ax[1], "u_SP [V]", xlabel="time [s]", ylim=(-0.5, max(volts) + 1))
     return fig, res
 
 

@@ -12,40 +12,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
 from dataclasses import dataclass
 from typing import Iterable, Mapping
 
 import numpy as np
 
-from .components.base import REGISTRY, Component, Params, show
+from .components.base import Component, show
 from .components.drive import DRIVES
-from .components.friction import FRICTIONS
 from .components.rotor import RotorParams
-from .components.spring import LimpHomeSpring
-from .components.stops import EndStops
 from .components.supply import SUPPLY_RANGE_V, SupplyParams
 from .integrate import Engine, ensure_thread_pool, solve_ivp_reference
+from .plant_description import CORE_ROLES, MODELS, PLANT_SCHEMA, model_components, plant_arguments
 
-MODELS = tuple(f"{f}{d}" for f in "123" for d in "ABC")
-CORE_ROLES = ("drive", "friction", "spring", "stops")
-PLANT_SCHEMA = "etb-gym/plant/1"
-
-
-def _states_text(names, x) -> str:
-    return ", ".join(f"{n} = {float(v):.6g}" for n, v in zip(names, x))
-
-
-def _kind_of(v) -> str:
-    return {bool: "true/false", str: "text", dict: "a table", list: "a list"}.get(type(v), type(v).__name__)
-
-
-def _model_parts(model: str):
-    m = re.fullmatch(r"([123])([ABC])", str(model).strip().upper())
-    if not m:
-        raise ValueError(f"unknown model {model!r}: expected one of {', '.join(MODELS)} "
-                         "(friction 1 viscous / 2 Dahl / 3 LuGre, drive A linear / B nonlinear L / C flux)")
-    return m.group(1), m.group(2)
+__all__ = ["CORE_ROLES", "MODELS", "PLANT_SCHEMA", "Plant", "Trajectory", "make_plant"]
 
 
 @dataclass
@@ -184,6 +163,20 @@ class Plant:
         return self.engine.fast
 
     @property
+    def state_slices(self) -> tuple:
+        """``(start, stop)`` of each component's own states in the state vector, in ``components`` order."""
+        return self.engine.layout.state_slices
+
+    def stepper(self, path: str = "fast"):
+        """The generated stepper of this composition, for callers that run their own loops (the envs):
+        ``rhs(t, x, u, P, dx, aux)``, ``control_step(x, d, V, P, t0, dt, substeps, switching, f_pwm, aux) -> ok``,
+        ``simulate``, ``batch_step``, ``batch_step_serial``. ``path``: "fast" (compiled when available) or
+        "plain" (pure Python, the same operations). The methods of this class are the checked way in."""
+        if path not in ("fast", "plain"):
+            raise ValueError(f"path = {path!r}: expected 'fast' or 'plain'")
+        return self.engine.fns if path == "fast" else self.engine.plain
+
+    @property
     def limp_home_rad(self):
         return self.spring.params.limp_home_rad if self.spring is not None else 0.0
 
@@ -297,91 +290,9 @@ class Plant:
     @classmethod
     def from_dict(cls, d: Mapping) -> "Plant":
         """Build a plant from its plain description (a parsed plant file, docs/plant-file.md). Every error names
-        the key (``rotor.inertia_kg_m2``, ``effects[1].params.gain``) and what was expected."""
-        def table(v, where):
-            if not isinstance(v, Mapping):
-                raise ValueError(f"{where}: expected a table, got {_kind_of(v)}")
-            return v
-
-        def params_of(P, values, where):
-            values = dict(table(values, where))
-            names = [f.name for f in dataclasses.fields(P)]
-            unknown = sorted(set(values) - set(names))
-            if unknown:
-                raise ValueError(f"{where} has unknown key(s) {unknown}; valid: {names}")
-            if "inductance_table" in values and values["inductance_table"] is not None:
-                from .components.drive import InductanceTable
-                t = dict(table(values["inductance_table"], f"{where}.inductance_table"))
-                tn = [f.name for f in dataclasses.fields(InductanceTable)]
-                bad = sorted(set(t) - set(tn))
-                if bad or set(tn) - set(t):
-                    raise ValueError(f"{where}.inductance_table: expected exactly the keys {tn}, got {sorted(t)}")
-                try:
-                    values["inductance_table"] = InductanceTable(**t)
-                except (TypeError, ValueError) as e:
-                    raise ValueError(f"{where}.inductance_table: {e}") from None
-            try:
-                return P(**values)
-            except (TypeError, ValueError) as e:
-                raise ValueError(f"{where}: {e}") from None
-
-        def comp(spec, where):
-            if spec is None:
-                return None
-            if not isinstance(spec, Mapping) or "kind" not in spec:
-                raise ValueError(f"{where}: expected a table with a 'kind' key (one of {sorted(REGISTRY)})")
-            extra = sorted(set(spec) - {"kind", "params", "name"})
-            if extra:
-                raise ValueError(f"{where} has unknown key(s) {extra}; valid: ['kind', 'name', 'params']")
-            kind = spec["kind"]
-            if not isinstance(kind, str) or kind not in REGISTRY:
-                raise ValueError(f"{where}.kind = {show(kind)} is unknown; valid: {sorted(REGISTRY)}")
-            C = REGISTRY[kind]
-            obj = C(params_of(C.Params, spec.get("params", {}), f"{where}.params"))
-            if spec.get("name") is not None:
-                if not isinstance(spec["name"], str) or not spec["name"].strip():
-                    raise ValueError(f"{where}.name = {show(spec['name'])}: expected a non-empty text")
-                obj.name = spec["name"]
-            return obj
-
-        table(d, "the plant description")
-        allowed = {"schema", "model", "control_period_s", "substeps", "rotor", "supply", "effects", *CORE_ROLES}
-        unknown = sorted(set(d) - allowed)
-        if unknown:
-            raise ValueError(f"unknown key(s) {unknown}; valid: {sorted(allowed)}")
-        if "schema" in d and d["schema"] != PLANT_SCHEMA:
-            raise ValueError(f"schema = {show(d['schema'])} is not supported: expected {PLANT_SCHEMA!r} "
-                             f"(written by this version of etb-gym)")
-        if d.get("model") is not None and not isinstance(d["model"], str):
-            raise ValueError(f"model = {show(d['model'])}: expected one of {', '.join(MODELS)} as text")
-        for key, kind in (("control_period_s", "a number of seconds > 0"), ("substeps", "a whole number >= 1")):
-            v = d.get(key)
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
-                                  or (key == "substeps" and not isinstance(v, int))):
-                raise ValueError(f"{key} = {show(v)}: expected {kind}, got {_kind_of(v)}")
-        base = make_plant(d["model"]) if d.get("model") else None
-        kw = {}
-        for role in CORE_ROLES:
-            if role in d:
-                kw[role] = comp(d[role], role)
-            elif base is not None:
-                kw[role] = getattr(base, role)
-        if kw.get("drive") is None:
-            raise ValueError(f"expected a 'model' ({', '.join(MODELS)}) or a 'drive' table")
-        rotor = params_of(RotorParams, d["rotor"], "rotor") if "rotor" in d else RotorParams()
-        supply = params_of(SupplyParams, d["supply"], "supply") if "supply" in d else SupplyParams()
-        effects = d.get("effects", [])
-        if not isinstance(effects, (list, tuple)):
-            raise ValueError(f"effects: expected a list of tables ([[effects]] in TOML), got {_kind_of(effects)}")
-        effects = [comp(e, f"effects[{k}]") for k, e in enumerate(effects)]
-        names = [e.name for e in effects if "name" in e.__dict__]
-        clash = sorted({n for n in names if names.count(n) > 1 or n in CORE_ROLES})
-        if clash:
-            raise ValueError(f"effects: the name(s) {clash} are used twice or by a core component: expected "
-                             f"distinct names other than {', '.join(CORE_ROLES)}")
-        return cls(effects=effects, rotor=rotor, supply=supply,
-                   control_period_s=d.get("control_period_s", 1e-3), substeps=d.get("substeps", 20),
-                   model=d.get("model"), **kw)
+        the key (``rotor.inertia_kg_m2``, ``effects[1].params.gain``) and what was expected
+        (etb_gym/plant_description.py)."""
+        return cls(**plant_arguments(d))
 
     # ------------------------------------------------------------------------------ states
     def initial_state(self, angle_rad: float | None = None, velocity_rad_s: float = 0.0, current_A: float = 0.0,
@@ -572,13 +483,11 @@ def make_plant(model: str = "3B", overrides: Mapping[str, float] | None = None, 
 
     ``overrides`` changes parameters by "component.field" (see :meth:`Plant.with_params`).
     """
-    f, d = _model_parts(model)
+    core = model_components(model)
     supply = SupplyParams()
     if pwm_mode is not None:
         supply = supply.replace(pwm_mode=pwm_mode)
     if supply_V is not None:
         supply = supply.replace(voltage_V=supply_V)
-    plant = Plant(drive=DRIVES[d](), friction=FRICTIONS[f](), spring=LimpHomeSpring(), stops=EndStops(),
-                  effects=effects, supply=supply, control_period_s=control_period_s, substeps=substeps,
-                  model=f + d)
+    plant = Plant(**core, effects=effects, supply=supply, control_period_s=control_period_s, substeps=substeps)
     return plant.with_params(overrides) if overrides else plant

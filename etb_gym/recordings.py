@@ -302,49 +302,30 @@ def _check_magnitude(source, k, a, limit, unit, milli, floor):
                              f"of any automotive throttle; {hint}")
 
 
-def validate(columns: dict, *, source: str = "<memory>", name: str | None = None) -> Recording:
-    """Turn raw columns into a :class:`Recording`, or raise :class:`RecordingError` naming the problem.
+def _column(columns, key, source, required=True):
+    """Column ``key`` (or an alias) as a float vector in SI units: ``(name found, values)``, or (None, None)."""
+    k, scale = _find(columns, key, source)
+    if k is None:
+        if required:
+            raise RecordingError(f"{source}: missing column {key!r}: expected it or one of its aliases "
+                                 f"({', '.join(ALIASES[key])}); found {sorted(map(str, columns))}")
+        return None, None
+    a = np.asarray(columns[k])
+    if a.dtype.kind not in "fiub":
+        raise RecordingError(f"{source}: column {k!r} is not numeric (it holds {a.dtype.name} values): expected "
+                             f"numbers")
+    if a.dtype.kind == "b":
+        raise RecordingError(f"{source}: column {k!r} holds true/false values: expected numbers")
+    if not (a.ndim <= 1 or min(a.shape) == 1) or a.ndim > 2:
+        raise RecordingError(f"{source}: column {k!r} has shape {' x '.join(map(str, np.shape(a)))}: expected "
+                             f"one value per sample (a vector)")
+    with np.errstate(over="ignore", invalid="ignore"):
+        a = a.astype(float).reshape(-1) * scale
+    return str(k), a
 
-    Besides format checks, the values must be plausible for a throttle rig: sample period within
-    SAMPLE_PERIOD_RANGE_S, |voltage| and supply <= VOLTAGE_LIMIT_V, |current| <= CURRENT_LIMIT_A, no isolated
-    single-sample outliers, no plate jumps out and back within one sample. Columns named in ms/mV/mA
-    (``SCALED_ALIASES``) are converted to s/V/A."""
-    if not isinstance(columns, dict) or not columns:
-        raise RecordingError(f"{source}: holds no columns: expected time_s, voltage_V (or duty + supply_V), "
-                             f"angle_deg, optional current_A")
 
-    def col(key, required=True):
-        k, scale = _find(columns, key, source)
-        if k is None:
-            if required:
-                raise RecordingError(f"{source}: missing column {key!r}: expected it or one of its aliases "
-                                     f"({', '.join(ALIASES[key])}); found {sorted(map(str, columns))}")
-            return None, None
-        a = np.asarray(columns[k])
-        if a.dtype.kind not in "fiub":
-            raise RecordingError(f"{source}: column {k!r} is not numeric (it holds {a.dtype.name} values): expected "
-                                 f"numbers")
-        if a.dtype.kind == "b":
-            raise RecordingError(f"{source}: column {k!r} holds true/false values: expected numbers")
-        if not (a.ndim <= 1 or min(a.shape) == 1) or a.ndim > 2:
-            raise RecordingError(f"{source}: column {k!r} has shape {' x '.join(map(str, np.shape(a)))}: expected "
-                                 f"one value per sample (a vector)")
-        with np.errstate(over="ignore", invalid="ignore"):
-            a = a.astype(float).reshape(-1) * scale
-        return str(k), a
-
-    kt, t = col("time_s")
-    ka, ang = col("angle_deg")
-    kv, volt = col("voltage_V", required=False)
-    kd, duty = col("duty", required=False)
-    ks, sup = col("supply_V", required=False)
-    ki, cur = col("current_A", required=False)
-    if volt is None and (duty is None or sup is None):
-        missing = "voltage_V" if duty is None else "supply_V (needed with duty)"
-        raise RecordingError(f"{source}: missing column {missing}: expected voltage_V, or duty together with supply_V; "
-                             f"found {sorted(map(str, columns))}")
-    named = [(kt, t), (ka, ang), (kv, volt), (kd, duty), (ks, sup), (ki, cur)]
-    n = t.size
+def _check_rows(source, named, kt, n):
+    """Every column has ``n`` rows of finite numbers."""
     for k, a in named:
         if a is None:
             continue
@@ -357,6 +338,10 @@ def validate(columns: dict, *, source: str = "<memory>", name: str | None = None
                                  f"in every row")
     if n < MIN_SAMPLES:
         raise RecordingError(f"{source}: too short: {n} rows, expected at least {MIN_SAMPLES}")
+
+
+def _check_time(source, kt, t):
+    """Strictly increasing, regularly sampled, at a throttle rig's rate, long enough."""
     dt = np.diff(t)
     if np.any(dt <= 0):
         r = int(np.argmax(dt <= 0)) + 1
@@ -377,6 +362,10 @@ def validate(columns: dict, *, source: str = "<memory>", name: str | None = None
                              f"{lo_dt:g}..{hi_dt:g} s expected of a throttle recording{hint}")
     if t[-1] - t[0] < MIN_DURATION_S:
         raise RecordingError(f"{source}: too short: {t[-1] - t[0]:.3g} s, expected at least {MIN_DURATION_S} s")
+
+
+def _check_angle(source, ka, ang, kv, volt):
+    """Degrees (not a fraction, radians or a sensor voltage), within -30..120 deg, no single-sample glitch."""
     lo, hi = float(ang.min()), float(ang.max())
     if hi - lo < 1.7 and -0.05 <= lo and hi <= 1.7:
         raise RecordingError(f"{source}: column {ka!r}: values span only {lo:.3g}..{hi:.3g}: this looks like a 0..1 "
@@ -391,7 +380,7 @@ def validate(columns: dict, *, source: str = "<memory>", name: str | None = None
         raise RecordingError(f"{source}: column {ka!r}, row {r}: angle {_v(ang[r])} deg is outside -30..120 deg; "
                              f"expected the plate angle in degrees (0 closed, 90 open){swap}")
     # a plate cannot jump out and back within one sample: an angle glitch
-    if n >= 3:
+    if ang.size >= 3:
         d1, d2 = ang[1:-1] - ang[:-2], ang[1:-1] - ang[2:]
         glitch = (np.abs(d1) > 15.0) & (np.abs(d2) > 15.0) & (np.sign(d1) == np.sign(d2)) & \
                  (np.abs(ang[2:] - ang[:-2]) < 2.0)
@@ -401,36 +390,72 @@ def validate(columns: dict, *, source: str = "<memory>", name: str | None = None
                                  f"({', '.join(_v(ang[i]) for i in rows)} deg between neighbours at "
                                  f"{', '.join(_v(ang[i - 1]) for i in rows)} deg): a plate cannot jump there and back "
                                  f"in one sample; repair or remove these rows")
-    if volt is not None:
-        _check_magnitude(source, kv, volt, VOLTAGE_LIMIT_V, "V", "mV", 2.0)
-    if cur is not None:
-        _check_magnitude(source, ki, cur, CURRENT_LIMIT_A, "A", "mA", 1.0)
-    if sup is not None:
-        if np.any(sup <= 0):
-            r = int(np.argmax(sup <= 0))
-            raise RecordingError(f"{source}: column {ks!r}, row {r}: supply {_v(sup[r])} V: expected > 0 V")
-        spikes = _spikes(sup - np.median(sup), 0.5 * float(np.median(sup)))
-        if spikes.size:
-            raise RecordingError(f"{source}: column {ks!r}, row(s) {_rows(spikes)}: single-sample outlier(s) "
-                                 f"{', '.join(_v(sup[i]) for i in spikes)} V against a median supply of "
-                                 f"{_v(np.median(sup))} V: repair or remove these rows")
-        if np.max(sup) > VOLTAGE_LIMIT_V:
-            r = int(np.argmax(sup))
-            raise RecordingError(f"{source}: column {ks!r}, row {r}: supply {_v(sup[r])} V is beyond the "
-                                 f"{_v(VOLTAGE_LIMIT_V)} V of any automotive battery; "
-                                 + ("this looks like mV: divide by 1000 or name the column supply_mV"
-                                    if np.max(sup) / 1000 <= VOLTAGE_LIMIT_V else "expected volts"))
+
+
+def _check_supply(source, ks, sup):
+    """Positive, no single-sample spike, volts (not mV)."""
+    if np.any(sup <= 0):
+        r = int(np.argmax(sup <= 0))
+        raise RecordingError(f"{source}: column {ks!r}, row {r}: supply {_v(sup[r])} V: expected > 0 V")
+    spikes = _spikes(sup - np.median(sup), 0.5 * float(np.median(sup)))
+    if spikes.size:
+        raise RecordingError(f"{source}: column {ks!r}, row(s) {_rows(spikes)}: single-sample outlier(s) "
+                             f"{', '.join(_v(sup[i]) for i in spikes)} V against a median supply of "
+                             f"{_v(np.median(sup))} V: repair or remove these rows")
+    if np.max(sup) > VOLTAGE_LIMIT_V:
+        r = int(np.argmax(sup))
+        raise RecordingError(f"{source}: column {ks!r}, row {r}: supply {_v(sup[r])} V is beyond the "
+                             f"{_v(VOLTAGE_LIMIT_V)} V of any automotive battery; "
+                             + ("this looks like mV: divide by 1000 or name the column supply_mV"
+                                if np.max(sup) / 1000 <= VOLTAGE_LIMIT_V else "expected volts"))
+
+
+def _bridge_voltage(source, kv, volt, kd, duty, ks, sup):
+    """The bridge voltage: the voltage column (within the supply, when one is recorded) or duty * supply."""
     if volt is None:
         if np.any(np.abs(duty) > 1 + 1e-9):
             r = int(np.argmax(np.abs(duty) > 1 + 1e-9))
             pct = "; this looks like percent: divide by 100" if np.abs(duty).max() <= 100 else ""
             raise RecordingError(f"{source}: column {kd!r}, row {r}: duty {_v(duty[r])}: expected a value in "
                                  f"[-1, 1]{pct}")
-        volt = duty * sup
-    elif sup is not None and np.any(np.abs(volt) > sup * (1 + 1e-6)):
+        return duty * sup
+    if sup is not None and np.any(np.abs(volt) > sup * (1 + 1e-6)):
         r = int(np.argmax(np.abs(volt) > sup * (1 + 1e-6)))
         raise RecordingError(f"{source}: column {kv!r}, row {r}: voltage {_v(volt[r])} V exceeds the supply "
                              f"{_v(sup[r])} V: expected |voltage| <= supply")
+    return volt
+
+
+def validate(columns: dict, *, source: str = "<memory>", name: str | None = None) -> Recording:
+    """Turn raw columns into a :class:`Recording`, or raise :class:`RecordingError` naming the problem.
+
+    Besides format checks, the values must be plausible for a throttle rig: sample period within
+    SAMPLE_PERIOD_RANGE_S, |voltage| and supply <= VOLTAGE_LIMIT_V, |current| <= CURRENT_LIMIT_A, no isolated
+    single-sample outliers, no plate jumps out and back within one sample. Columns named in ms/mV/mA
+    (``SCALED_ALIASES``) are converted to s/V/A."""
+    if not isinstance(columns, dict) or not columns:
+        raise RecordingError(f"{source}: holds no columns: expected time_s, voltage_V (or duty + supply_V), "
+                             f"angle_deg, optional current_A")
+    kt, t = _column(columns, "time_s", source)
+    ka, ang = _column(columns, "angle_deg", source)
+    kv, volt = _column(columns, "voltage_V", source, required=False)
+    kd, duty = _column(columns, "duty", source, required=False)
+    ks, sup = _column(columns, "supply_V", source, required=False)
+    ki, cur = _column(columns, "current_A", source, required=False)
+    if volt is None and (duty is None or sup is None):
+        missing = "voltage_V" if duty is None else "supply_V (needed with duty)"
+        raise RecordingError(f"{source}: missing column {missing}: expected voltage_V, or duty together with supply_V; "
+                             f"found {sorted(map(str, columns))}")
+    _check_rows(source, [(kt, t), (ka, ang), (kv, volt), (kd, duty), (ks, sup), (ki, cur)], kt, t.size)
+    _check_time(source, kt, t)
+    _check_angle(source, ka, ang, kv, volt)
+    if volt is not None:
+        _check_magnitude(source, kv, volt, VOLTAGE_LIMIT_V, "V", "mV", 2.0)
+    if cur is not None:
+        _check_magnitude(source, ki, cur, CURRENT_LIMIT_A, "A", "mA", 1.0)
+    if sup is not None:
+        _check_supply(source, ks, sup)
+    volt = _bridge_voltage(source, kv, volt, kd, duty, ks, sup)
     return Recording(name=name or Path(source).name, t_s=t.copy(), voltage_V=volt.copy(), angle_deg=ang.copy(),
                      current_A=None if cur is None else cur.copy(), supply_V=None if sup is None else sup.copy(),
                      path=source if source != "<memory>" else None)

@@ -66,3 +66,30 @@ def test_vector_seed_list_reset_mask_and_errors():
         env.step(np.zeros((3, 1), np.float32))
     with pytest.raises(ValueError, match="unknown argument"):
         gym.make_vec("ETB-1A-v0", num_envs=2, speed=3)
+
+
+def private_reads(source: str) -> list[str]:
+    """``obj._name`` reads in ``source`` where ``obj`` is not ``self`` (dunders aside): reach-through into
+    another object's internals."""
+    import ast
+
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if (isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__")
+                and not (isinstance(node.value, ast.Name) and node.value.id == "self")):
+            out.append(f"line {node.lineno}: {ast.unparse(node)}")
+    return out
+
+
+def test_vector_env_reads_no_private_attribute_of_the_single_env():
+    """The vector env takes the single env's public EnvKernel (env.kernel) and episode draws, nothing private:
+    a rename inside ETBEnv cannot break the compiled loops."""
+    import inspect
+
+    import etb_gym.envs.vector as vector
+
+    found = private_reads(inspect.getsource(vector))
+    assert not found, "envs/vector.py reads private attributes of other objects: " + "; ".join(found)
+    # the check itself sees such a read
+    assert private_reads("def f(self):\n    return self.env._P_nominal + self._ok\n") == \
+        ["line 2: self.env._P_nominal"]

@@ -163,37 +163,27 @@ def saturating_inductance(i, phi, L0, r_inf, i_sat, a_phi):
 
 
 @kernel
+def knot_interval(x, q, off, n):
+    """``(k, f)``: x lies a fraction f of the way from knot k to knot k + 1 of the increasing knots
+    q[off:off+n], clamped to the first and last interval (f = 0 below the first knot, 1 above the last)."""
+    if x <= q[off]:
+        return 0, 0.0
+    if x >= q[off + n - 1]:
+        return n - 2, 1.0
+    k = 0
+    while q[off + k + 1] < x:
+        k += 1
+    return k, (x - q[off + k]) / (q[off + k + 1] - q[off + k])
+
+
+@kernel
 def table_inductance(i, phi, q):
     """Bilinear interpolation in a packed InductanceTable q = [n_i, n_phi, I..., PHI..., L(row-major)]."""
     ni = int(q[0])
     nphi = int(q[1])
-    a = abs(i)
-    io = 2
-    po = 2 + ni
     lo = 2 + ni + nphi
-    # current index
-    if a <= q[io]:
-        ka = 0
-        fa = 0.0
-    elif a >= q[io + ni - 1]:
-        ka = ni - 2
-        fa = 1.0
-    else:
-        ka = 0
-        while q[io + ka + 1] < a:
-            ka += 1
-        fa = (a - q[io + ka]) / (q[io + ka + 1] - q[io + ka])
-    if phi <= q[po]:
-        kp = 0
-        fp = 0.0
-    elif phi >= q[po + nphi - 1]:
-        kp = nphi - 2
-        fp = 1.0
-    else:
-        kp = 0
-        while q[po + kp + 1] < phi:
-            kp += 1
-        fp = (phi - q[po + kp]) / (q[po + kp + 1] - q[po + kp])
+    ka, fa = knot_interval(abs(i), q, 2, ni)
+    kp, fp = knot_interval(phi, q, 2 + ni, nphi)
     l00 = q[lo + ka * nphi + kp]
     l01 = q[lo + ka * nphi + kp + 1]
     l10 = q[lo + (ka + 1) * nphi + kp]

@@ -20,7 +20,7 @@ from ..jit import kernel
 from .base import non_negative, positive
 from .base import Params
 from .effects_electrical import Effect
-from .friction import bristle_advance, stribeck_curve
+from .friction import bristle_advance, bristle_rate, stribeck_curve
 
 G_MIN_NM = 1e-12
 
@@ -39,20 +39,23 @@ class StribeckFrictionParams(Params):
 
 
 @kernel
-def stribeck_friction_kernel(t, phi, omega, i, u, s, p, ds):
+def stribeck_level(omega, p):
+    """g(omega) of the extra stiction (kept above G_MIN_NM so the bristle equation stays regular)."""
     g = stribeck_curve(omega, 0.0, p[0], p[1])
     if g < G_MIN_NM:
         g = G_MIN_NM
-    ds[0] = omega - p[2] * abs(omega) * s[0] / g
+    return g
+
+
+@kernel
+def stribeck_friction_kernel(t, phi, omega, i, u, s, p, ds):
+    ds[0] = bristle_rate(s[0], omega, p[2], stribeck_level(omega, p))
     return -p[2] * s[0], 0.0, 0.0
 
 
 @kernel
 def stribeck_friction_advance(h, t, phi, omega, i, u, s, p):
-    g = stribeck_curve(omega, 0.0, p[0], p[1])
-    if g < G_MIN_NM:
-        g = G_MIN_NM
-    s[0] = bristle_advance(s[0], omega, h, p[2], g)
+    s[0] = bristle_advance(s[0], omega, h, p[2], stribeck_level(omega, p))
 
 
 class StribeckFriction(Effect):
@@ -84,14 +87,23 @@ def angle_friction_level(phi, a1, a2):
 
 
 @kernel
-def angle_dependent_friction_kernel(t, phi, omega, i, u, s, p, ds):
-    ds[0] = omega - abs(omega) * s[0] / p[2]
-    return -angle_friction_level(phi, p[0], p[1]) * s[0] / p[2], 0.0, 0.0
+def unit_bristle_friction(level, omega, s, ds, delta):
+    """A friction level ``level`` [N m] acting through a unit bristle w (presliding distance ``delta``):
+    dw/dt = (omega - |omega| w) / delta, torque -level w. Returns the torque, writes dw/dt to ``ds[0]``."""
+    ds[0] = bristle_rate(s[0], omega, 1.0, delta)
+    return -level * s[0] / delta
 
 
 @kernel
-def angle_dependent_friction_advance(h, t, phi, omega, i, u, s, p):
-    s[0] = bristle_advance(s[0], omega, h, 1.0, p[2])
+def unit_bristle_advance(h, t, phi, omega, i, u, s, p):
+    """The exact update of a unit bristle; its presliding distance is the last parameter of every
+    unit-bristle component (angle_dependent_friction and the friction maps)."""
+    s[0] = bristle_advance(s[0], omega, h, 1.0, p[p.size - 1])
+
+
+@kernel
+def angle_dependent_friction_kernel(t, phi, omega, i, u, s, p, ds):
+    return unit_bristle_friction(angle_friction_level(phi, p[0], p[1]), omega, s, ds, p[2]), 0.0, 0.0
 
 
 class AngleDependentFriction(Effect):
@@ -101,5 +113,5 @@ class AngleDependentFriction(Effect):
     state_names = ("z_rad",)
     state_units = ("rad",)
     kernel = staticmethod(angle_dependent_friction_kernel)
-    advance = staticmethod(angle_dependent_friction_advance)
+    advance = staticmethod(unit_bristle_advance)
     description = "friction that varies with plate angle"

@@ -23,13 +23,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import ClassVar
 
 import numpy as np
 
 from ..jit import kernel
 from .base import Params, check, positive
 from .effects_electrical import Effect
-from .friction import bristle_advance
+from .effects_friction import unit_bristle_advance, unit_bristle_friction
 
 
 # ------------------------------------------------------------------------------------ table helpers
@@ -51,6 +52,14 @@ def table_lookup(x, q, off, n, voff):
     x0 = q[off + lo]
     f = (x - x0) / (q[off + lo + 1] - x0)
     return (1.0 - f) * q[voff + lo] + f * q[voff + lo + 1]
+
+
+@kernel
+def map_value(x, p, k):
+    """Value table ``k`` (0: the first value field) of a packed map [n, grid (n), values (n) per field,
+    scalars...] at ``x``."""
+    n = int(p[0])
+    return table_lookup(x, p, 1, n, 1 + (k + 1) * n)
 
 
 def _shown(v):
@@ -90,25 +99,40 @@ def _as_values(owner: str, field: str, v, n: int, grid_field: str) -> tuple:
 
 @dataclasses.dataclass(frozen=True)
 class _MapParams(Params):
-    """A grid field and one or more value fields of the same length (set by subclasses)."""
+    """A grid field (``grid``, knots >= ``lower`` when set) and value fields of the same length (``values``),
+    then scalar fields (``scalars``, each > 0): set by subclasses as plain class attributes."""
 
-    def _normalize(self, grid: str, values: tuple, lower=None):
+    grid: ClassVar[str] = ""
+    values: ClassVar[tuple] = ()
+    scalars: ClassVar[tuple] = ()
+    lower: ClassVar[float | None] = None
+
+    def validate(self):
         owner = type(self).__name__
-        g = _as_grid(owner, grid, getattr(self, grid), lower=lower)
-        object.__setattr__(self, grid, g)
-        for f in values:
-            object.__setattr__(self, f, _as_values(owner, f, getattr(self, f), len(g), grid))
+        g = _as_grid(owner, self.grid, getattr(self, self.grid), lower=self.lower)
+        object.__setattr__(self, self.grid, g)
+        for f in self.values:
+            object.__setattr__(self, f, _as_values(owner, f, getattr(self, f), len(g), self.grid))
+        positive(owner, self, *self.scalars)
 
     def __hash__(self):
         return hash(tuple(getattr(self, f.name) for f in dataclasses.fields(self)))
 
 
 class _MapEffect(Effect):
-    """Packs [n, grid..., values..., extra scalars...] for the kernel."""
+    """Packs [n, grid..., values..., scalars...] for the kernel; ``kind``, ``grid_field``, ``value_fields`` and
+    ``scalar_fields`` follow from ``effect_id`` and the Params class."""
 
     grid_field = ""
     value_fields: tuple = ()
     scalar_fields: tuple = ()
+
+    def __init_subclass__(cls, **kw):
+        if cls.effect_id:          # a concrete map (not an intermediate base)
+            cls.kind = "effect." + cls.effect_id
+            cls.grid_field, cls.value_fields = cls.Params.grid, cls.Params.values
+            cls.scalar_fields = cls.Params.scalars
+        super().__init_subclass__(**kw)
 
     def param_vector(self):
         q = self.params
@@ -125,28 +149,30 @@ class _MapEffect(Effect):
         return np.interp(np.asarray(x, float), g, v)
 
 
+class _UnitBristleMap(_MapEffect):
+    """A friction map acting through a unit bristle (effects_friction.unit_bristle_friction)."""
+
+    state_names = ("z_rad",)
+    state_units = ("rad",)
+    advance = staticmethod(unit_bristle_advance)
+
+
 # ------------------------------------------------------------------------------------ torque over angle
 @dataclasses.dataclass(frozen=True)
 class AngleTorqueMapParams(_MapParams):
     angle_rad: tuple = (0.0, math.radians(90.0))     # knots over the plant's stroke
     torque_Nm: tuple = (0.0, 0.0)                    # opening positive
-
-    def validate(self):
-        self._normalize("angle_rad", ("torque_Nm",))
+    grid, values = "angle_rad", ("torque_Nm",)
 
 
 @kernel
 def angle_torque_map_kernel(t, phi, omega, i, u, s, p, ds):
-    n = int(p[0])
-    return table_lookup(phi, p, 1, n, 1 + n), 0.0, 0.0
+    return map_value(phi, p, 0), 0.0, 0.0
 
 
 class AngleTorqueMap(_MapEffect):
-    kind = "effect.angle_torque_map"
     effect_id = "angle_torque_map"
     Params = AngleTorqueMapParams
-    grid_field = "angle_rad"
-    value_fields = ("torque_Nm",)
     kernel = staticmethod(angle_torque_map_kernel)
     description = "torque over plate angle, a table learned from the data"
 
@@ -156,24 +182,18 @@ class AngleTorqueMap(_MapEffect):
 class TorqueConstantMapParams(_MapParams):
     angle_rad: tuple = (0.0, math.radians(90.0))
     delta_Nm_per_A: tuple = (0.0, 0.0)               # dk(phi): true torque constant minus the model's
-
-    def validate(self):
-        self._normalize("angle_rad", ("delta_Nm_per_A",))
+    grid, values = "angle_rad", ("delta_Nm_per_A",)
 
 
 @kernel
 def torque_constant_map_kernel(t, phi, omega, i, u, s, p, ds):
-    n = int(p[0])
-    dk = table_lookup(phi, p, 1, n, 1 + n)
+    dk = map_value(phi, p, 0)
     return dk * i, dk * omega, 0.0
 
 
 class TorqueConstantMap(_MapEffect):
-    kind = "effect.torque_constant_map"
     effect_id = "torque_constant_map"
     Params = TorqueConstantMapParams
-    grid_field = "angle_rad"
-    value_fields = ("delta_Nm_per_A",)
     kernel = staticmethod(torque_constant_map_kernel)
     description = "torque / back-EMF constant over plate angle, a table learned from the data"
 
@@ -184,37 +204,18 @@ class AngleFrictionMapParams(_MapParams):
     angle_rad: tuple = (0.0, math.radians(90.0))
     level_Nm: tuple = (0.0, 0.0)                     # g(phi): extra Coulomb level (may be negative)
     presliding_rad: float = 2e-3                     # delta of the unit bristle
-
-    def validate(self):
-        self._normalize("angle_rad", ("level_Nm",))
-        positive("AngleFrictionMapParams", self, "presliding_rad")
+    grid, values, scalars = "angle_rad", ("level_Nm",), ("presliding_rad",)
 
 
 @kernel
 def angle_friction_map_kernel(t, phi, omega, i, u, s, p, ds):
-    n = int(p[0])
-    delta = p[1 + 2 * n]
-    ds[0] = omega - abs(omega) * s[0] / delta
-    return -table_lookup(phi, p, 1, n, 1 + n) * s[0] / delta, 0.0, 0.0
+    return unit_bristle_friction(map_value(phi, p, 0), omega, s, ds, p[p.size - 1]), 0.0, 0.0
 
 
-@kernel
-def unit_bristle_advance(h, t, phi, omega, i, u, s, p):
-    # the presliding distance is the last parameter of every unit-bristle map
-    s[0] = bristle_advance(s[0], omega, h, 1.0, p[p.size - 1])
-
-
-class AngleFrictionMap(_MapEffect):
-    kind = "effect.angle_friction_map"
+class AngleFrictionMap(_UnitBristleMap):
     effect_id = "angle_friction_map"
     Params = AngleFrictionMapParams
-    grid_field = "angle_rad"
-    value_fields = ("level_Nm",)
-    scalar_fields = ("presliding_rad",)
-    state_names = ("z_rad",)
-    state_units = ("rad",)
     kernel = staticmethod(angle_friction_map_kernel)
-    advance = staticmethod(unit_bristle_advance)
     description = "friction level over plate angle, a table learned from the data"
 
 
@@ -225,36 +226,19 @@ class SpeedFrictionMapParams(_MapParams):
     opening_Nm: tuple = (0.0, 0.0)                   # g(|omega|) while opening (omega >= 0)
     closing_Nm: tuple = (0.0, 0.0)                   # g(|omega|) while closing
     presliding_rad: float = 2e-3
-
-    def validate(self):
-        self._normalize("speed_rad_s", ("opening_Nm", "closing_Nm"), lower=0.0)
-        positive("SpeedFrictionMapParams", self, "presliding_rad")
+    grid, values, scalars, lower = "speed_rad_s", ("opening_Nm", "closing_Nm"), ("presliding_rad",), 0.0
 
 
 @kernel
 def speed_friction_map_kernel(t, phi, omega, i, u, s, p, ds):
-    n = int(p[0])
-    delta = p[1 + 3 * n]
-    a = abs(omega)
-    if omega >= 0.0:
-        g = table_lookup(a, p, 1, n, 1 + n)
-    else:
-        g = table_lookup(a, p, 1, n, 1 + 2 * n)
-    ds[0] = omega - a * s[0] / delta
-    return -g * s[0] / delta, 0.0, 0.0
+    g = map_value(abs(omega), p, 0 if omega >= 0.0 else 1)
+    return unit_bristle_friction(g, omega, s, ds, p[p.size - 1]), 0.0, 0.0
 
 
-class SpeedFrictionMap(_MapEffect):
-    kind = "effect.speed_friction_map"
+class SpeedFrictionMap(_UnitBristleMap):
     effect_id = "speed_friction_map"
     Params = SpeedFrictionMapParams
-    grid_field = "speed_rad_s"
-    value_fields = ("opening_Nm", "closing_Nm")
-    scalar_fields = ("presliding_rad",)
-    state_names = ("z_rad",)
-    state_units = ("rad",)
     kernel = staticmethod(speed_friction_map_kernel)
-    advance = staticmethod(unit_bristle_advance)
     description = "friction level over speed and direction, a table learned from the data"
 
     def friction_curve(self, omega) -> np.ndarray:
@@ -270,23 +254,17 @@ class SpeedFrictionMap(_MapEffect):
 class CurrentVoltageMapParams(_MapParams):
     current_A: tuple = (-1.0, 1.0)                   # signed knots
     drop_V: tuple = (0.0, 0.0)                       # extra voltage drop in the coil loop
-
-    def validate(self):
-        self._normalize("current_A", ("drop_V",))
+    grid, values = "current_A", ("drop_V",)
 
 
 @kernel
 def current_voltage_map_kernel(t, phi, omega, i, u, s, p, ds):
-    n = int(p[0])
-    return 0.0, table_lookup(i, p, 1, n, 1 + n), 0.0
+    return 0.0, map_value(i, p, 0), 0.0
 
 
 class CurrentVoltageMap(_MapEffect):
-    kind = "effect.current_voltage_map"
     effect_id = "current_voltage_map"
     Params = CurrentVoltageMapParams
-    grid_field = "current_A"
-    value_fields = ("drop_V",)
     kernel = staticmethod(current_voltage_map_kernel)
     description = "voltage drop over current, a table learned from the data"
 
@@ -296,9 +274,7 @@ class CurrentVoltageMap(_MapEffect):
 class SensorMapParams(_MapParams):
     angle_rad: tuple = (0.0, math.radians(90.0))
     error_rad: tuple = (0.0, 0.0)                    # d(phi): reading minus true angle
-
-    def validate(self):
-        self._normalize("angle_rad", ("error_rad",))
+    grid, values = "angle_rad", ("error_rad",)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -63,16 +63,23 @@ class DahlFrictionParams(Params):
 
 
 @kernel
+def bristle_rate(z, omega, sigma0, g):
+    """dz/dt = omega - sigma0*|omega|*z/g: the bristle (presliding) state of every friction model with one
+    (Dahl: g = T_c; LuGre: g = the Stribeck curve; the diagnosis' unit bristles: sigma0 = 1, g = delta)."""
+    return omega - sigma0 * abs(omega) * z / g
+
+
+@kernel
 def dahl_friction_kernel(t, phi, omega, i, u, s, p, ds):
     # p = [T_c, sigma0, sigma2]
     z = s[0]
-    ds[0] = omega - p[1] * abs(omega) * z / p[0]
+    ds[0] = bristle_rate(z, omega, p[1], p[0])
     return -(p[1] * z + p[2] * omega), 0.0, 0.0
 
 
 @kernel
 def bristle_advance(z, omega, h, sigma0, g):
-    """Exact update of dz/dt = omega - sigma0*|omega|*z/g over h for frozen omega."""
+    """Exact update of dz/dt = bristle_rate(z, omega, sigma0, g) over h for frozen omega."""
     a = sigma0 * abs(omega) / g
     ah = a * h
     if ah < 1e-12:
@@ -134,7 +141,7 @@ def lugre_stribeck(phi, omega, i, p):
 def lugre_friction_kernel(t, phi, omega, i, u, s, p, ds, g):
     # p = [T_c, T_s, omega_s, sigma0, sigma1, sigma2]; g = lugre_stribeck(phi, omega, i, p)
     z = s[0]
-    dz = omega - p[3] * abs(omega) * z / g
+    dz = bristle_rate(z, omega, p[3], g)
     ds[0] = dz
     return -(p[3] * z + p[4] * dz + p[5] * omega), 0.0, 0.0
 

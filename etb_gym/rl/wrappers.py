@@ -111,14 +111,40 @@ class TrainingReferences(VectorWrapper):
         return obs, reward, term, trunc, info
 
 
-class BaseControllerDuty(VectorWrapper):
+class _FollowsObservations(VectorWrapper):
+    """A wrapper with per-sub-env state (``self.tracker``: ``reset_rows(rows, obs_rows)``, ``update(obs)``) that
+    follows the observation stream, and that shows ``self._shown(obs)`` instead of the observation. At an
+    episode end the tracker sees the final observation, which is shown the same way (``info["final_obs"]``),
+    then restarts the finished rows from the reset observation."""
+
+    tracker = None
+
+    def _shown(self, obs):
+        raise NotImplementedError
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.tracker.reset_rows(np.arange(self.num_envs), obs)
+        return self._shown(obs), info
+
+    def step(self, actions):
+        obs, reward, term, trunc, info = self.env.step(actions)
+        last, rows = _final(obs, info)
+        self.tracker.update(last)
+        if rows is not None:
+            info = dict(info, final_obs=self._shown(last))
+            self.tracker.reset_rows(rows, np.asarray(obs)[rows])
+        return self._shown(obs), reward, term, trunc, info
+
+
+class BaseControllerDuty(_FollowsObservations):
     """Residual mode: the base controllers (:class:`~etb_gym.rl.task.BaseControllers`, one per sub-env, built
     like the benchmark builds ``spec`` for ``env_id``) follow the observation stream; each observation gets one
     more column, the base duty for the coming period (float64, exact)."""
 
     def __init__(self, env: VectorEnv, spec: str, env_id: str):
         super().__init__(env)
-        self.base = BaseControllers(spec, env_id, self.num_envs)
+        self.base = self.tracker = BaseControllers(spec, env_id, self.num_envs)
         box = env.single_observation_space
         self.single_observation_space = spaces.Box(np.append(box.low, -1.0), np.append(box.high, 1.0),
                                                    (box.shape[0] + 1,), np.float64)
@@ -126,22 +152,8 @@ class BaseControllerDuty(VectorWrapper):
                                             np.tile(self.single_observation_space.high, (self.num_envs, 1)),
                                             (self.num_envs, box.shape[0] + 1), np.float64)
 
-    def _with_duty(self, obs):
+    def _shown(self, obs):
         return np.column_stack([np.asarray(obs, np.float64), self.base.duty])
-
-    def reset(self, *, seed=None, options=None):
-        obs, info = self.env.reset(seed=seed, options=options)
-        self.base.reset_rows(range(self.num_envs), obs)
-        return self._with_duty(obs), info
-
-    def step(self, actions):
-        obs, reward, term, trunc, info = self.env.step(actions)
-        last, rows = _final(obs, info)
-        self.base.update(last)
-        if rows is not None:
-            info = dict(info, final_obs=self._with_duty(last))
-            self.base.reset_rows(rows, np.asarray(obs)[rows])
-        return self._with_duty(obs), reward, term, trunc, info
 
 
 class ResidualAction(VectorWrapper):
@@ -165,34 +177,20 @@ class ResidualAction(VectorWrapper):
         return obs, reward, term, trunc, info
 
 
-class PolicyObservation(VectorWrapper):
+class PolicyObservation(_FollowsObservations):
     """The policy features of the observation stream (:class:`~etb_gym.rl.task.PolicyFeatures`), updated every
     control period; in residual mode the last input column is the base duty (:class:`BaseControllerDuty`)."""
 
     def __init__(self, env: VectorEnv, task: TaskConfig):
         super().__init__(env)
         self.task = task
-        self.features = PolicyFeatures(self.num_envs, control_period(env), task)
+        self.features = self.tracker = PolicyFeatures(self.num_envs, control_period(env), task)
         n = len(feature_names(task))
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (n,), np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, (self.num_envs, n), np.float32)
 
-    def _value(self, obs):
+    def _shown(self, obs):
         return self.features.value(np.asarray(obs)[:, -1] if self.task.residual else None)
-
-    def reset(self, *, seed=None, options=None):
-        obs, info = self.env.reset(seed=seed, options=options)
-        self.features.reset_rows(np.arange(self.num_envs), obs)
-        return self._value(obs), info
-
-    def step(self, actions):
-        obs, reward, term, trunc, info = self.env.step(actions)
-        last, rows = _final(obs, info)
-        self.features.update(last)
-        if rows is not None:
-            info = dict(info, final_obs=self._value(last))
-            self.features.reset_rows(rows, np.asarray(obs)[rows])
-        return self._value(obs), reward, term, trunc, info
 
 
 class ActionRepeat(VectorWrapper):
