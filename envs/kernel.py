@@ -114,7 +114,7 @@ class EnvKernel:
             reward_weights=np.array([w["tracking"] / TRACKING_SCALE_DEG, w["effort"], w["chattering"] * 0.25]),
             sensor=np.array([sp.gain, sp.offset_rad, sp.resolution_rad, sp.current_noise_std_A,
                              sp.current_resolution_A, sp.supply_noise_std_V, sp.supply_resolution_V]),
-            delay_length=sp.delay_steps + 1 if sp.delay_steps else 0,
+            delay_length=sp.delay_steps,                 # readings d periods old (as PositionSensor)
             noise_cols=2 + observe_supply, observe_current=observe_current, observe_supply=observe_supply,
             full_state=full_state, n_obs=n_obs, supply_index=4 + observe_current,
             state_scales=state_scales(plant), obs_low=low, obs_high=-low,
