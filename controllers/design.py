@@ -108,7 +108,7 @@ def linearize(plant: Plant | NominalModel | str | None = None, phi0_rad: float |
     n = lin.n_states
     P = lin.P
     aux = np.zeros(len(lin.components))
-    rhs = lin.engine.plain.rhs
+    rhs = lin.stepper("plain").rhs
 
     def f(x, u):
         dx = np.empty(n)

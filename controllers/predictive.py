@@ -5,7 +5,7 @@ empties the coil (L = 20 mH: the current cannot fall faster), then the holding v
 friction stop the plate. Where to switch depends on all three states (angle, speed, coil current) and on
 the coil's saturating inductance, the angle-dependent torque constant, the springs and the friction. Rather
 than an approximate third-order switching surface, :class:`StopPredictor` integrates **the plant's own
-compiled model** (``Plant.engine.fns.control_step``, the equations the simulator integrates, the same
+compiled model** (``Plant.stepper().control_step``, the equations the simulator integrates, the same
 substeps) a few control periods ahead from the controller's state estimate, under
 
     policy B (brake):  d_0 this period, then   d = -s        while s (i - i_hold) > 0   (empty the coil)
@@ -43,7 +43,7 @@ class StopPredictor:
     def __init__(self, model, horizon: int = 12, iterations: int = 5):
         self.m = model
         self.plant = model.plant
-        fns = self.plant.engine.fns
+        fns = self.plant.stepper()
         self._step = fns.control_step
         self._nsub = self.plant.substeps
         self._switching = self.plant.supply.switching

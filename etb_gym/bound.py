@@ -111,7 +111,7 @@ class _Problem:
         current band static friction holds: T_s / k), from the plant's right-hand side."""
         p = self.plant
         x = p.initial_state(math.radians(angle_deg), at_rest=False)
-        rhs = p.engine.fns.rhs
+        rhs = p.stepper().rhs
         dx = np.empty(p.n_states)
         aux = np.zeros(len(p.components))
         names = p.component_names
@@ -160,7 +160,7 @@ class _Problem:
         x[2] = self.holding_current(self.b)[0]
         dx = np.empty(p.n_states)
         aux = np.zeros(len(p.components))
-        rhs = p.engine.fns.rhs
+        rhs = p.stepper().rhs
         rhs(0.0, x, 0.0, p.P, dx, aux)
         f0 = dx[2]
         rhs(0.0, x, 1.0, p.P, dx, aux)
@@ -249,7 +249,7 @@ def landing_input(prob: _Problem, preload: float, n: int) -> np.ndarray:
     hold = prob.hold_duty()
     x = prob.x0(preload).copy()
     aux = np.zeros(len(plant.components))
-    step = plant.engine.fns.control_step
+    step = plant.stepper().control_step
     duty = np.full(n, hold)
     s = prob.sign
     for k in range(n):

@@ -1,5 +1,8 @@
 """The fixed-rate stepper, its compiled fast path, and the solve_ivp reference.
 
+(About 500 lines on purpose: the generated-source template is one piece with the functions it defines;
+its composition-dependent fragments are in stepper_blocks.py, the builds and cache in kernel_cache.py.)
+
 A plant is a list of components (see ``components/base.py``). From that list this module *generates*
 the source of the stepper, written once and used in two builds:
 

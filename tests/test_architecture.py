@@ -93,3 +93,18 @@ def test_no_import_cycles():
 def test_find_cycle_reports_one():
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_only_the_plant_touches_its_engine():
+    """Callers use Plant's public way in (``stepper(path)``, ``state_slices``, ``simulate``): an attribute read
+    ``<x>.engine`` outside etb_gym/plant.py (and integrate.py, which builds it) would break on a rename."""
+    offenders = []
+    for folder in ("etb_gym", "envs", "controllers"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            rel = path.relative_to(ROOT).as_posix()
+            if rel in ("etb_gym/plant.py", "etb_gym/integrate.py"):
+                continue
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.Attribute) and node.attr == "engine":
+                    offenders.append(f"{rel}:{node.lineno}")
+    assert not offenders, f"Plant.engine read outside plant.py: {offenders}"

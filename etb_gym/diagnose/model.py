@@ -193,18 +193,18 @@ class Spec:
 
 
 def _persistent_slices(plant: Plant) -> list[tuple[int, int]]:
-    lay = plant.engine.layout
+    slices = plant.state_slices
     out = []
     for k, c in enumerate(plant.components):
         if getattr(c, "persistent_states", False):
-            out.append(lay.state_slices[k])
+            out.append(slices[k])
     return out
 
 
 def simulate(plant: Plant, sensor: SensorModel, data: Data, raise_on_failure: bool = False):
     """Predicted reading (deg) and current (A) per recording. Where the simulation fails: None, or
     :class:`SimulationFailed` naming the recording and the time with ``raise_on_failure``."""
-    fns = plant.engine.fns
+    fns = plant.stepper()
     keep = _persistent_slices(plant)
     R = float(getattr(plant.drive.params, "resistance_ohm", 1.0))
     out = []

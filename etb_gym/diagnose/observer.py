@@ -70,7 +70,7 @@ def observe(plant, sensor, rd, omega_o: float | None = None):
     A = np.empty((n, len(plant.components)))
     lag = max(0.0, float(sensor.delay_s) / float(plant.control_period_s))
     L = gains(plant.control_period_s, plant.n_states, omega_o) if GAIN_OVERRIDE is None else GAIN_OVERRIDE(plant)
-    done = plant.engine.fns.observe(x0, rd.duty[:n - 1], rd.supply_V[:n - 1], plant.P, float(r.t_s[0]),
+    done = plant.stepper().observe(x0, rd.duty[:n - 1], rd.supply_V[:n - 1], plant.P, float(r.t_s[0]),
                                     plant.control_period_s, plant.substeps, plant.supply.switching,
                                     plant.supply.pwm_frequency_hz, y_rad, L, lag, X, A)
     if done < n - 1:
