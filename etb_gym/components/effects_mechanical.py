@@ -53,7 +53,10 @@ def spring_asymmetry_kernel(t, phi, omega, i, u, s, p, ds):
 
 @kernel
 def spring_asymmetry_edges(phi0, omega0, phi1, omega1, p):
-    """Where the torque jumps: at phi_LH (the extra spring's damping switches off above it) and phi_LH - eps."""
+    """Where the torque jumps: at phi_LH (the extra spring's damping switches off above it) and phi_LH - eps.
+    None with all deltas zero: a zero-magnitude effect changes nothing, not even the substep split."""
+    if p[1] == 0.0 and p[2] == 0.0 and p[4] == 0.0:
+        return 2.0
     a = crossing(phi0, phi1, p[0])
     b = crossing(phi0, phi1, p[0] - p[3])
     return a if a < b else b
