@@ -114,6 +114,11 @@ def generate_source(components, lay: Layout) -> str:
     carried = cv.carried
     c_args, c_init, c_at = cv.args, cv.init, cv.at
     eval_block, stage_block = eval_blocks(components, lay, cv)
+
+    def rhs_body(block):     # the body shared by rhs_carried and rhs_stage: sum the components, then dx
+        return ("    phi = x[0]\n    omega = x[1]\n    i = x[2]\n    T = 0.0\n    E = 0.0\n    L = 0.0\n"
+                f"{block}\n    dx[0] = omega\n    dx[1] = T / P[0]\n    dx[2] = (u - E) / L\n")
+
     relax_block, save_half, finish = flow_blocks(components, lay, cv)
     edges_block, rate_block, plaus_block = contact_functions(components, lay)
     step_block, resolve_block = step_blocks(components, lay, cv)
@@ -143,32 +148,12 @@ def rhs(t, x, u, P, dx, aux):
 
 def rhs_carried(t, x, u, P, dx, aux{c_args()}):
     """rhs, given the components' carried values c<k> at the state x."""
-    phi = x[0]
-    omega = x[1]
-    i = x[2]
-    T = 0.0
-    E = 0.0
-    L = 0.0
-{eval_block}
-    dx[0] = omega
-    dx[1] = T / P[0]
-    dx[2] = (u - E) / L
-
+{rhs_body(eval_block)}
 
 def rhs_stage(t, x, u, P, dx{c_args()}):
     """rhs_carried without recording the torques in aux: the first stage of a substep, whose torques the
     midpoint stage overwrites."""
-    phi = x[0]
-    omega = x[1]
-    i = x[2]
-    T = 0.0
-    E = 0.0
-    L = 0.0
-{stage_block}
-    dx[0] = omega
-    dx[1] = T / P[0]
-    dx[2] = (u - E) / L
-
+{rhs_body(stage_block)}
 
 def relax(t, h, x, u, P{c_args()}):
     """Flow A over h: the components' exact state updates (bristles) with phi, omega, i frozen."""
