@@ -97,7 +97,8 @@ class SelfTuning:
         self._i_prev = None
 
     def update_from_innovation(self, innovation_rad: float, v: float, sensitivity_rad: float,
-                               gain: float, min_speed_rad_s: float, taper_speed_rad_s: float = math.inf) -> None:
+                               gain: float, min_speed_rad_s: float, taper_speed_rad_s: float = math.inf,
+                               spring_phi: float | None = None) -> None:
         """Friction level from a model-based observer's angle innovation while the plate moves faster than
         ``min_speed_rad_s`` (the LMS of :meth:`update` needs > ``slide_speed_rad_s``; above ``taper_speed_rad_s``
         the gain falls as 1/|v|: there the innovation holds more than friction): a plate that runs
@@ -105,13 +106,29 @@ class SelfTuning:
 
             theta_f <- clip(theta_f - gain sgn(v) innovation / sensitivity, FRICTION_BOUNDS)
 
-        ``sensitivity_rad``: the angle one period of sliding loses per unit of friction level."""
+        ``sensitivity_rad``: the angle one period of sliding loses per unit of friction level.
+
+        ``spring_phi`` (the plate angle, rad) also learns the spring level: the residual load is split between
+        the two regressors of the load opposing the motion, T_c (friction) and sgn(v) T_spring(phi) (springs),
+        as a normalized LMS does (minimum-norm step). One move cannot tell them apart, but a spring error
+        changes sign with the direction of motion and a friction error does not, so moves both ways separate
+        them (a weaker spring looks like less friction opening and more friction closing)."""
         if not self.enabled or abs(v) < min_speed_rad_s or sensitivity_rad <= 0:
             return
         if abs(v) > taper_speed_rad_s:      # fast: the innovation holds more than friction (the LMS's range)
             gain *= taper_speed_rad_s / abs(v)
-        step = gain * (1.0 if v > 0 else -1.0) * innovation_rad / sensitivity_rad
-        self.friction_level = _clip(self.friction_level - step, *self.FRICTION_BOUNDS)
+        sv = 1.0 if v > 0 else -1.0
+        step = gain * sv * innovation_rad / sensitivity_rad
+        if spring_phi is None:
+            self.friction_level = _clip(self.friction_level - step, *self.FRICTION_BOUNDS)
+            return
+        # both regressors of the load opposing the motion, theta_f T_c + theta_s sgn(v) T_spring(phi): the
+        # normalized update splits the residual between them (over moves both ways it separates them)
+        tc = self.m.coulomb_Nm
+        xs = sv * self.m.spring_torque_Nm(spring_phi)
+        norm = tc * tc / (tc * tc + xs * xs)
+        self.friction_level = _clip(self.friction_level - step * norm, *self.FRICTION_BOUNDS)
+        self.spring_level = _clip(self.spring_level - step * norm * xs / tc, *self.SPRING_BOUNDS)
 
     def update(self, i_m: float, u_applied: float, v: float, a: float, phi: float) -> None:
         if not self.enabled:
@@ -364,7 +381,15 @@ class PTOSController(CascadeController):
     ``innovation_speed_rad_s`` (tapered above ``innovation_taper_rad_s``), gain ``innovation_gain`` times
     min(1, (``innovation_noise_deg``)^2 / mean square of the resting innovation); 0 turns it off. Outside
     the zone (large moves, where the LMS learns) it lets the landing of a large step alone: with it there,
-    springs -20 % 80->10 deg limit-cycled around the target (6.7x its bound, one seed of two)."""
+    springs -20 % 80->10 deg limit-cycled around the target (6.7x its bound, one seed of two). While the
+    reference moves (ramps, pedal) it learns the spring level too (``innovation_springs``; moves both ways
+    separate the two): with the friction level alone, the pedal profile at springs -20 % learnt the weaker
+    spring as less friction on its opening ramps and lagged 8 deg on the next closing ramp (1.38 deg RMS).
+
+    The predictor's observer has a rest check (``rest_band_deg``, ``rest_check_speed_rad_s``): when the sensed
+    angle has stayed within the band for two periods, an observer speed above the check speed is replaced by
+    the sensed one (see :meth:`.predictive.StopPredictor.observe`). After a landing the capture law keeps the
+    plate until the error exceeds ``relaunch_deg``; then a new predicted move starts."""
 
     name = "ptos"
     use_generator = False
@@ -373,9 +398,10 @@ class PTOSController(CascadeController):
                  velocity_gain_V_s_per_rad: float = 0.014, alpha: float = 0.56, dead_time_s: float = 0.0004,
                  integral_V_per_rad_s: float = 3300.0, integral_zone_deg: float = 1.0, integral_limit_V: float = 3.0,
                  predictive: bool = True, engage_deg: float = 0.3, aim_short_deg: float = 0.0,
-                 relaunch_deg: float = 1.0, innovation_gain: float = 0.1, innovation_speed_rad_s: float = 1.0,
+                 relaunch_deg: float = 0.2, innovation_gain: float = 0.1, innovation_speed_rad_s: float = 1.0,
                  innovation_noise_deg: float = 0.02, innovation_taper_rad_s: float = 4.0,
-                 innovation_settle_s: float = 0.02, innovation_zone_deg: float = 1.0, **kw):
+                 innovation_settle_s: float = 0.02, innovation_zone_deg: float = 1.0, rest_band_deg: float = 0.05,
+                 rest_check_speed_rad_s: float = 2.0, innovation_springs: bool = True, **kw):
         own = type(self).__name__
         kw.setdefault("friction_compensation", 1.0)      # full nominal friction level, linear within 0.12 deg
         kw.setdefault("friction_zone_deg", 0.12)
@@ -396,9 +422,13 @@ class PTOSController(CascadeController):
         self.innovation_settle = check_gain(own, "innovation_settle_s", innovation_settle_s, non_negative=True)
         self.innovation_zone = math.radians(check_gain(own, "innovation_zone_deg", innovation_zone_deg, positive=True))
         self.innovation_ref = math.radians(check_gain(own, "innovation_noise_deg", innovation_noise_deg, positive=True))
+        self.innovation_springs = bool(innovation_springs)
         super().__init__(model, params, **kw)
         self._g_noise = min(1.0, self.dt / 0.05)     # mean square of the resting innovation over 50 ms
         self.predictor = StopPredictor(self.model) if self.predictive and self.model.plant is not None else None
+        if self.predictor is not None:
+            self.predictor.rest_band_rad = math.radians(check_gain(own, "rest_band_deg", rest_band_deg, non_negative=True))
+            self.predictor.rest_speed = check_gain(own, "rest_check_speed_rad_s", rest_check_speed_rad_s, positive=True)
 
     def reset_outer(self) -> None:
         self.I = 0.0
@@ -406,6 +436,7 @@ class PTOSController(CascadeController):
         self.landed_at = None
         self.innovation_ms = getattr(self, "innovation_ref", 0.0) ** 2
         self.observed_periods = 0
+        self.r_prev = None
         if getattr(self, "predictor", None) is not None:
             self.predictor.reset()
 
@@ -428,8 +459,11 @@ class PTOSController(CascadeController):
             # noise-weighted gain (as a Kalman gain falls with the measurement noise): full gain up to the
             # reference innovation RMS, 1/variance beyond, so sensor noise cannot drive the estimate
             g = self.innovation_gain * min(1.0, self.innovation_ref ** 2 / max(self.innovation_ms, 1e-30))
+            tracking = self.r_prev is not None and abs(r_target - self.r_prev) > 1e-7
             st.update_from_innovation(eps, v_pred, p.level_sensitivity(), g, self.innovation_speed,
-                                      self.innovation_taper)
+                                      self.innovation_taper,
+                                      spring_phi=y if tracking and self.innovation_springs else None)
+        self.r_prev = r_target
         s = 1.0 if e > 0 else -1.0
         if self.landed_at is not None and abs(r_target - self.landed_at) > 1e-4:
             self.landed_at = None                   # a new target: a new move

@@ -62,6 +62,9 @@ class StopPredictor:
         self.levels = None
         self.P = self.plant.P
         self._xo = None
+        self._ys = [0.0, 0.0, 0.0]
+        self.rest_band_rad = 0.0
+        self.rest_speed = 1.0
         self.innovation = 0.0
         self.stop_angle(0.0, 1.0, self.plant.supply.voltage_V, 0.0, 0.0)     # load the compiled step once, here
 
@@ -93,13 +96,22 @@ class StopPredictor:
                 gain_speed: float = 0.25) -> None:
         """Observer of the plate state on the same model: the previous estimate stepped over the last period
         with the duty applied, corrected by the sensed angle (gains on the angle innovation: ``gain_angle``
-        on the angle, ``gain_speed``/T on the speed) and the measured current (taken as is)."""
+        on the angle, ``gain_speed``/T on the speed) and the measured current (taken as is).
+
+        Rest check (``rest_band_rad`` > 0): when the sensed angle has stayed within ``rest_band_rad`` over the
+        last two periods and the estimate's speed exceeds ``rest_speed``, the speed is replaced by the sensed
+        one (the mean over the two periods). A model whose load is wrong (weaker springs, friction learnt low)
+        otherwise believes a stuck plate is running away -- each period the model accelerates it and the speed
+        correction cannot keep up -- and the landing law brakes a plate that is not moving."""
         xo = self._xo
+        ys = self._ys
+        ys[0], ys[1], ys[2] = ys[1], ys[2], y
         if xo is None:
             xo = self._xo = self._x0.copy()
             xo[0], xo[1], xo[2] = y, 0.0, i_m
             if self._z >= 0:
                 xo[self._z] = 0.0
+            ys[0] = ys[1] = y
         else:
             self._step(xo, d_prev, V, self.P, 0.0, self.dt, self._nsub, self._switching, self._fpwm, self._aux)
             eps = y - xo[0]
@@ -107,6 +119,11 @@ class StopPredictor:
             xo[0] += gain_angle * eps
             xo[1] += gain_speed * eps / self.dt
             xo[2] = i_m
+            # rest check: a plate the sensor has shown still for two periods is not moving fast, whatever the
+            # model says (a model whose load is wrong, e.g. weaker springs and friction learnt low, otherwise
+            # believes the stuck plate runs away and brakes it where it sticks)
+            if self.rest_band_rad > 0 and max(ys) - min(ys) < self.rest_band_rad and abs(xo[1]) > self.rest_speed:
+                xo[1] = (ys[2] - ys[0]) / (2.0 * self.dt)
         self._x0[:] = xo
 
     def level_sensitivity(self) -> float:
