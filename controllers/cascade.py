@@ -98,7 +98,7 @@ class SelfTuning:
 
     def update_from_innovation(self, innovation_rad: float, v: float, sensitivity_rad: float,
                                gain: float, min_speed_rad_s: float, taper_speed_rad_s: float = math.inf,
-                               spring_phi: float | None = None) -> None:
+                               spring_phi: float | None = None, spring_share: float = 1.0) -> None:
         """Friction level from a model-based observer's angle innovation while the plate moves faster than
         ``min_speed_rad_s`` (the LMS of :meth:`update` needs > ``slide_speed_rad_s``; above ``taper_speed_rad_s``
         the gain falls as 1/|v|: there the innovation holds more than friction): a plate that runs
@@ -112,7 +112,8 @@ class SelfTuning:
         the two regressors of the load opposing the motion, T_c (friction) and sgn(v) T_spring(phi) (springs),
         as a normalized LMS does (minimum-norm step). One move cannot tell them apart, but a spring error
         changes sign with the direction of motion and a friction error does not, so moves both ways separate
-        them (a weaker spring looks like less friction opening and more friction closing)."""
+        them (a weaker spring looks like less friction opening and more friction closing). ``spring_share``
+        scales the spring's part of the step (the friction's part is the normalized one)."""
         if not self.enabled or abs(v) < min_speed_rad_s or sensitivity_rad <= 0:
             return
         if abs(v) > taper_speed_rad_s:      # fast: the innovation holds more than friction (the LMS's range)
@@ -128,7 +129,7 @@ class SelfTuning:
         xs = sv * self.m.spring_torque_Nm(spring_phi)
         norm = tc * tc / (tc * tc + xs * xs)
         self.friction_level = _clip(self.friction_level - step * norm, *self.FRICTION_BOUNDS)
-        self.spring_level = _clip(self.spring_level - step * norm * xs / tc, *self.SPRING_BOUNDS)
+        self.spring_level = _clip(self.spring_level - spring_share * step * norm * xs / tc, *self.SPRING_BOUNDS)
 
     def update(self, i_m: float, u_applied: float, v: float, a: float, phi: float) -> None:
         if not self.enabled:
@@ -382,9 +383,10 @@ class PTOSController(CascadeController):
     min(1, (``innovation_noise_deg``)^2 / mean square of the resting innovation); 0 turns it off. Outside
     the zone (large moves, where the LMS learns) it lets the landing of a large step alone: with it there,
     springs -20 % 80->10 deg limit-cycled around the target (6.7x its bound, one seed of two). While the
-    reference moves (ramps, pedal) it learns the spring level too (``innovation_springs``; moves both ways
-    separate the two): with the friction level alone, the pedal profile at springs -20 % learnt the weaker
-    spring as less friction on its opening ramps and lagged 8 deg on the next closing ramp (1.38 deg RMS).
+    reference moves (ramps, pedal) it learns the spring level too (``innovation_springs``, the spring's part
+    of the normalized step times ``innovation_spring_share``; moves both ways separate the two): with the
+    friction level alone, the pedal profile at springs -20 % learnt the weaker spring as less friction on its
+    opening ramps and lagged 8 deg on the next closing ramp (1.38 deg RMS).
 
     The predictor's observer has a rest check (``rest_band_deg``, ``rest_check_speed_rad_s``): when the sensed
     angle has stayed within the band for two periods, an observer speed above the check speed is replaced by
@@ -401,7 +403,8 @@ class PTOSController(CascadeController):
                  relaunch_deg: float = 0.2, innovation_gain: float = 0.1, innovation_speed_rad_s: float = 1.0,
                  innovation_noise_deg: float = 0.02, innovation_taper_rad_s: float = 4.0,
                  innovation_settle_s: float = 0.02, innovation_zone_deg: float = 1.0, rest_band_deg: float = 0.05,
-                 rest_check_speed_rad_s: float = 2.0, innovation_springs: bool = True, **kw):
+                 rest_check_speed_rad_s: float = 2.0, innovation_springs: bool = True,
+                 innovation_spring_share: float = 0.3, **kw):
         own = type(self).__name__
         kw.setdefault("friction_compensation", 1.0)      # full nominal friction level, linear within 0.12 deg
         kw.setdefault("friction_zone_deg", 0.12)
@@ -423,6 +426,8 @@ class PTOSController(CascadeController):
         self.innovation_zone = math.radians(check_gain(own, "innovation_zone_deg", innovation_zone_deg, positive=True))
         self.innovation_ref = math.radians(check_gain(own, "innovation_noise_deg", innovation_noise_deg, positive=True))
         self.innovation_springs = bool(innovation_springs)
+        self.spring_share = check_gain(own, "innovation_spring_share", innovation_spring_share, non_negative=True,
+                                       upper=1.0001)
         super().__init__(model, params, **kw)
         self._g_noise = min(1.0, self.dt / 0.05)     # mean square of the resting innovation over 50 ms
         self.predictor = StopPredictor(self.model) if self.predictive and self.model.plant is not None else None
@@ -462,7 +467,8 @@ class PTOSController(CascadeController):
             tracking = self.r_prev is not None and abs(r_target - self.r_prev) > 1e-7
             st.update_from_innovation(eps, v_pred, p.level_sensitivity(), g, self.innovation_speed,
                                       self.innovation_taper,
-                                      spring_phi=y if tracking and self.innovation_springs else None)
+                                      spring_phi=y if tracking and self.innovation_springs else None,
+                                      spring_share=self.spring_share)
         self.r_prev = r_target
         s = 1.0 if e > 0 else -1.0
         if self.landed_at is not None and abs(r_target - self.landed_at) > 1e-4:

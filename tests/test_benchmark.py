@@ -141,3 +141,20 @@ def test_cli_help_and_bad_args():
     r = subprocess.run([sys.executable, str(ROOT / "scripts" / "benchmark.py"), "--scenario", "nope"],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "step_10_80" in r.stderr
+
+
+def test_a_ratio_of_exactly_two_is_within_the_grid_target():
+    """Settling times are whole control periods read from float time stamps: 6 ms on a 3 ms bound is
+    0.006000000000000005 / 0.003 = 2.0000000000000004 and was counted as a T3 miss; 7 ms still is one."""
+    from etb_gym.bench_results import CSV_COLUMNS, TEXT_COLUMNS
+
+    def row(variant, settle_s, bound_s):
+        r = {c: float("nan") for c in CSV_COLUMNS[5:] if c not in TEXT_COLUMNS}
+        r.update(env="ETB-3B-v0", controller="x", scenario="small_step_40", variant=variant, seed=0, stable=True,
+                 settling_time_s=settle_s, bound_s=bound_s, settling_ratio=settle_s / bound_s,
+                 steady_state_error_deg=0.01, limit_cycle_deg=0.005, overshoot_pct=0.0, rms_error_deg=0.05)
+        return r
+
+    t3 = lambda rows: [t for t in bench_report.check_targets(rows) if t[2] == "T3"][0]  # noqa: E731
+    assert t3([row("nominal", 0.004, 0.003), row("friction_-50", 0.306 - 0.3, 0.003)])[5]
+    assert not t3([row("nominal", 0.004, 0.003), row("friction_-50", 0.307 - 0.3, 0.003)])[5]

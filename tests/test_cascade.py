@@ -212,9 +212,9 @@ def test_ptos_pedal_with_weaker_springs_tracks():
     """springs -20 %: the pedal profile's opening ramps made the friction-only innovation estimate learn the
     weaker spring as less friction (level 0.43); on the next closing ramp the predictor believed the stuck
     plate was running away and the plate lagged 8 deg (1.38 deg RMS, 4.2x nominal). With the spring
-    regressor while the reference moves and the observer's rest check: 0.51 deg (nominal 0.34)."""
+    regressor while the reference moves and the observer's rest check: 0.58 deg (nominal 0.34)."""
     from etb_gym.benchmark import SCENARIOS, Job, metrics, simulate
 
     tr, _ = simulate(Job("ETB-3B-v0", "ptos", "pedal", "springs_-20", 0))
     mm = metrics(tr, SCENARIOS["pedal"])
-    assert mm["rms_error_deg"] < 0.7, mm
+    assert mm["rms_error_deg"] < 0.8, mm

@@ -113,18 +113,19 @@ def rms_comparison(rows: Sequence[Mapping], agent: str, others: Sequence[str] = 
         row["ratio"] = row[agent] / best if math.isfinite(best) and best > 0 else math.nan
         table.append(row)
     ratios = np.array([r["ratio"] for r in table])
+    all_ = "both" if len(others) == 2 else "all"
     ok = ratios <= 1.2
     better = ratios < 1.0
     lines = [f"# RMS tracking error: {agent} vs {' / '.join(others)}", "",
              f"ratio = RMS({agent}) / min(RMS of {', '.join(others)}); target <= 1.2 everywhere, < 1 somewhere.",
              "", f"**{int(ok.sum())}/{len(table)}** runs within 1.2x, **{int(better.sum())}/{len(table)}** better than "
-             f"both (nominal: {int(sum(o for o, r in zip(ok, table) if r['variant'] == 'nominal'))}/"
+             f"{all_} (nominal: {int(sum(o for o, r in zip(ok, table) if r['variant'] == 'nominal'))}/"
              f"{sum(r['variant'] == 'nominal' for r in table)} within 1.2x; geometric-mean ratio "
              f"{float(np.exp(np.mean(np.log(np.clip(ratios, 1e-9, None))))):.3g}).", "",
              f"| scenario | variant | {agent} [deg] | " + " | ".join(f"{c} [deg]" for c in others) + " | ratio | |",
              "|---|---|---|" + "---|" * len(others) + "---|---|"]
     for r in table:
-        mark = "better than both" if r["ratio"] < 1.0 else ("within 1.2x" if r["ratio"] <= 1.2 else "**miss**")
+        mark = f"better than {all_}" if r["ratio"] < 1.0 else ("within 1.2x" if r["ratio"] <= 1.2 else "**miss**")
         lines.append(f"| {r['scenario']} | {r['variant']} | {r[agent]:.4g} | "
                      + " | ".join(f"{r[c]:.4g}" for c in others) + f" | {r['ratio']:.3g} | {mark} |")
     return "\n".join(lines) + "\n", table
@@ -132,7 +133,7 @@ def rms_comparison(rows: Sequence[Mapping], agent: str, others: Sequence[str] = 
 
 
 def compare_main(argv=None) -> int:
-    """``python -m etb_gym.rl compare OUT/results.csv --agent rl:DIR [--md FILE] [--csv FILE]``."""
+    """``python -m etb_gym.rl compare OUT/results.csv --agent rl:DIR [--md FILE] [--csv FILE] [--against C ...]``."""
     import argparse
 
     p = argparse.ArgumentParser(prog="python -m etb_gym.rl", description="RL helpers: the RMS comparison table")
@@ -142,10 +143,12 @@ def compare_main(argv=None) -> int:
     c.add_argument("--agent", required=True, help="the agent's controller spec as in results.csv, e.g. rl:DIR")
     c.add_argument("--md", default=None, help="write the Markdown table here")
     c.add_argument("--csv", default=None, help="write the table rows here")
+    c.add_argument("--against", action="append", metavar="CONTROLLER",
+                   help="reference controller(s) in results.csv to compare with; repeat (default: pid and smc)")
     a = p.parse_args(argv)
     from etb_gym.benchmark import read_results
 
-    md, table = rms_comparison(read_results(a.results), a.agent)
+    md, table = rms_comparison(read_results(a.results), a.agent, tuple(a.against or ("pid", "smc")))
     print(md)
     if a.md:
         atomic_bytes(Path(a.md), md.encode())
