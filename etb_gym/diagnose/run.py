@@ -188,12 +188,13 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         bar.set_description("calibrating the nominal model")
         spec0 = Spec(base)
         try:
-            nominal = polish(F.calibrate(spec0, fit_data, max_nfev=40), data)
+            nominal0 = F.calibrate(spec0, fit_data, max_nfev=40)
         except SimulationFailed as e:
             raise SimulationFailed(f"the nominal model ({base.model or 'plant file'}) cannot be simulated on the "
                                    f"recorded voltage, so it cannot be calibrated: {e}. Check the plant's "
                                    "parameters and the recording's units (time in s, voltage in V)") from None
         bar.update(1)
+        nominal = polish(nominal0, data)      # the best model without an effect on the score
         numerical_tolerance(spec0, nominal.x, data)
         res0 = angle_residuals_deg(simulate(*spec0.build(nominal.x), data), data)
         lap("calibrate")
@@ -205,15 +206,16 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
         shaped = None
         if sig0:
-            final, steps = select(nominal, fit_data, runner, [c for c in opts.candidates if CANDIDATES[c].fit],
+            # the search starts from the fit's own optimum: a model that misses an effect drifts on the
+            # continuous replay, so its polish says nothing about where the effect's fit should start
+            final, steps = select(nominal0, fit_data, runner, [c for c in opts.candidates if CANDIDATES[c].fit],
                                   significant, opts.max_effects, bar, log, skipped)
             lap("select")
             from .refine import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
-            final, steps, shaped = refine(nominal, final, steps, fit_data, significant, log=log)
+            final, steps, shaped = refine(nominal0, final, steps, fit_data, significant, log=log)
             lap("refine")
-            if final is not nominal:
-                final = polish(final, data)
-                lap("polish")
+            final = nominal if final is nominal0 else polish(final, data)
+            lap("polish")
         else:
             final, steps = nominal, []
     finally:
