@@ -277,7 +277,13 @@ def simulate(plant: Plant, sensor: SensorModel, data: Data, raise_on_failure: bo
             if xprev is not None and data.continuity:
                 # continuity: where the model's own plate is where the readings are, it goes on from its own
                 # state (speed, current, bristles); the re-start at the readings blends in as the gap grows
-                w = restart_weight(abs(math.degrees(float(xprev[0]) - phi0)) / rd.noise_deg)
+                # (the model's angle as the sensor saw it: with a delay, the readings show the plate earlier)
+                seen = math.degrees(float(xprev[0]))
+                if sensor.delay_s > 0.0:
+                    k = max(0, a - int(math.ceil(sensor.delay_s / plant.control_period_s)) - 2)
+                    seen = float(np.interp(float(r.t_s[a]) - sensor.delay_s, r.t_s[k:a + 1],
+                                           np.append(ang[k:a], seen)))
+                w = restart_weight(abs(seen - math.degrees(phi0)) / rd.noise_deg)
                 if w < 1.0:
                     x0 = w * x0 + (1.0 - w) * xprev
             m = b - a
