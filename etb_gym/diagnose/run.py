@@ -64,7 +64,8 @@ def choose_substeps(base: Plant, data: Data, choices=SUBSTEP_CHOICES, frac: floa
     missing physics: false alarms.)"""
     spec = Spec(base)
     plant, sensor = spec.build(spec.x0())
-    data = replay_view(data)        # the observer's corrections would hide the stepper's own error
+    data = restart_view(replay_view(data))   # the observer's corrections would hide the stepper's own error; the
+                                             # continuous replay of a closed loop would charge it for drift
     sims = {}                       # each step simulated once: 2n of one try is n of the next
 
     def sim(n):
