@@ -67,11 +67,11 @@ def test_clean_recording_under_a_stiff_pid_is_a_match_with_the_observer_residual
     truth = truth_3b(2)
     rec = make_recording(truth, np.random.default_rng(102), duration_s=4.0, closed=True, noise_deg=0.01,
                          controller=stiff_pid(), name="stiff.csv")
-    # this PID (roll-off, no friction compensation) passes too little of the reading's noise into the voltage
-    # for the loop detector (docs/diagnosis.md), so the observer residual is asked for
-    res = diagnose([rec], options=Options(jobs=1, progress=False, verbose=False, residual="observer"))
+    # this PID (roll-off, no friction compensation) filters the reading's noise; the earlier loop statistic
+    # missed it, the Granger-type test (loop.py) detects it, so the default residual choice takes the observer
+    res = diagnose([rec], options=Options(jobs=1, progress=False, verbose=False))
     rep = res.report
-    assert rep["residual"]["stiff.csv"] == "observer"
+    assert rep["loop"]["stiff.csv"] == "closed" and rep["residual"]["stiff.csv"] == "observer"
     assert rep["observer"]["bandwidth_rad_s"] == O.OMEGA_O
     assert rep["effects"] == [] and rep["verdict"] == "match", (rep["verdict"], rep["rms_before_deg"],
                                                                  rep["noise_floor_deg"])

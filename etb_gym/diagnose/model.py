@@ -26,6 +26,7 @@ from ..plant import Plant
 from ..recordings import Recording
 from .candidates import Candidate, FitParam, nominal_params
 from .measurement import SensorModel, noise_floor, detect_resolution
+from .loop import LOOP_Z  # noqa: F401  (re-exported: run.py, tests)
 from .observer import observe
 
 SEGMENT_MIN_S = 0.25
@@ -65,15 +66,19 @@ class Data:
 
 
 LOOP_LAGS = 8
-LOOP_Z = 15.0             # closed loop when max |corr(d2V[k+l], d2y[k])| over l = 0..LOOP_LAGS exceeds LOOP_Z/sqrt(n)
+LOOP_Z_D2 = 15.0          # the earlier detector's threshold (closed_loop_evidence_d2; kept for the measurements)
 
 
 def closed_loop_evidence(rec) -> float:
-    """How strongly the recorded voltage reacts to the reading's noise: max over lags l = 0..LOOP_LAGS of
-    |corr(d2V[k+l], d2y[k])| x sqrt(n), d2 the second difference (it keeps the sensor noise and removes the
-    plate's smooth motion, which in open loop follows the input). In open loop the voltage cannot react to
-    the reading: 1.0-10.8 on open-loop recordings of 3B and of random nameplates (steps, ramps, PRBS); a
-    controller acting on the readings passes their noise into the voltage: 19-60 in closed loop."""
+    """How strongly the recorded voltage reacts to the reading's noise: the z-score of loop.loop_evidence
+    (a Granger-type test against circularly shifted readings); > LOOP_Z: recorded in closed loop."""
+    from .loop import loop_evidence
+    return loop_evidence(rec.voltage_V, rec.angle_deg, rec.dt_s)
+
+
+def closed_loop_evidence_d2(rec) -> float:
+    """The earlier statistic, max over lags l = 0..LOOP_LAGS of |corr(d2V[k+l], d2y[k])| x sqrt(n) (threshold
+    LOOP_Z_D2): it missed PID loops with a strong roll-off (scripts/loop_detection.py)."""
     dv = np.diff(np.asarray(rec.voltage_V, float), 2)
     dy = np.diff(np.asarray(rec.angle_deg, float), 2)
     n = dv.size
