@@ -354,7 +354,7 @@ def smc_layer_gain(key: str, lam: float, wf: float, gm_db: float, pm_deg: float,
         for Pw in plants:
             Cw = G * (Dw + lam) + rj_k * lam * Dw
             gm, pm, _ = grid_margins(w, Cw * Pw)
-            if not (20 * math.log10(gm) >= gm_db and pm >= pm_deg):
+            if not (gm > 0 and 20 * math.log10(gm) >= gm_db and pm >= pm_deg):   # gm 0: |L| >= 1 up to Nyquist
                 ok = False
                 break
         if ok:

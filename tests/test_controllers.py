@@ -135,3 +135,15 @@ def test_pid_compensation_helps_small_steps(pid):
     e_comp = np.mean(np.abs(closed_loop(pid, 40.0, 40.5)[tail] - 40.5))
     e_plain = np.mean(np.abs(closed_loop(plain, 40.0, 40.5)[tail] - 40.5))
     assert e_comp < 0.1 and e_comp < e_plain
+
+
+def test_smc_designs_on_random_nameplates():
+    """Seeds 2 and 8 gave a loop with |L| >= 1 up to Nyquist at small layer gains: the margin screen took
+    log10(0) and raised a bare 'math domain error' instead of moving on to larger gains."""
+    import numpy as np
+
+    from etb_gym.controllers.smc import SlidingModeController
+    from etb_gym.diagnose.synthetic import random_nameplate
+    for seed in (2, 8):
+        c = SlidingModeController(model=random_nameplate(np.random.default_rng(seed)))
+        assert c.layer_gain > 0 and np.isfinite(c.layer_gain)
