@@ -158,6 +158,19 @@ def periodicity(angle_deg: np.ndarray, value: np.ndarray, weight: np.ndarray | N
     P = float(fine[int(np.argmax(rf))])
     r2b, b = fit(P)
     amp_h = [math.hypot(b[3 + 2 * h], b[4 + 2 * h]) for h in range(harmonics)]
+    # a multiple of the period whose h-th harmonic carries the waveform (a 60 deg fit of a 20 deg square wave,
+    # its 3rd harmonic the fundamental, the others fitting the trend): the period is P/h if that fits nearly as well
+    h_dom = int(np.argmax(amp_h)) + 1
+    while h_dom > 1 and P / h_dom >= lo:
+        fine = np.linspace(0.97 * P / h_dom, 1.03 * P / h_dom, 41)
+        rf = [fit(Q)[0] for Q in fine]
+        Q = float(fine[int(np.argmax(rf))])
+        r2q, bq = fit(Q)
+        if r2q < max(0.85 * r2b, PERIODIC_R2):
+            break
+        P, r2b, b = Q, r2q, bq
+        amp_h = [math.hypot(b[3 + 2 * h], b[4 + 2 * h]) for h in range(harmonics)]
+        h_dom = int(np.argmax(amp_h)) + 1
     ph = [2 * math.pi * (h + 1) * a / P for h in range(harmonics)]
     per = sum(b[3 + 2 * h] * np.cos(ph[h]) + b[4 + 2 * h] * np.sin(ph[h]) for h in range(harmonics))
     e = np.array(amp_h) ** 2
