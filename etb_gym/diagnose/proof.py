@@ -186,7 +186,8 @@ def score_outside(row, rep, period_true):
     """A truth outside the catalogue: named when no catalogue effect is given as the explanation and the
     report says "outside the catalogue" with the true period (within 10 %)."""
     out = [u for u in rep["unexplained"] if u.get("outside_catalogue")]
-    ang = out[0].get("shape", {}).get("angle", {}) if out else {}
+    sh = out[0].get("shape", {}) if out else {}
+    ang = next((d for d in (sh.get("angle", {}), sh.get("current", {})) if d.get("periodic")), {})
     per = ang.get("period_deg") if ang.get("periodic") else None
     row["catalogue_given"] = bool(row["effects"])
     row["outside_id"] = out[0]["id"] if out else None
