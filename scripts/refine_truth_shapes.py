@@ -26,6 +26,7 @@ def run(family: str, shape: int, seed: int, scale: float, duration: float, subst
     from etb_gym.diagnose import fit as F
     from etb_gym.diagnose import shapes as S
     from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.measurement import SensorModel
     from etb_gym.diagnose.model import Spec, angle_residuals_deg, prepare, simulate
     from etb_gym.diagnose.proof_truth import FAMILIES, truth_for, truth_plant
     from etb_gym.diagnose.synthetic import make_recording
@@ -47,6 +48,7 @@ def run(family: str, shape: int, seed: int, scale: float, duration: float, subst
     rms = lambda fr: float(np.sqrt(np.mean(angle_residuals_deg(simulate(*fr.spec.build(fr.x), hd), hd)[0] ** 2))) / noise
     row = {"family": family, "shape": shape, "seed": seed, "scale": scale,
            "heldout_nominal": rms(nominal), "heldout_formula_twin": rms(formula),
+           "heldout_truth": float(np.sqrt(np.mean(angle_residuals_deg(simulate(truth, SensorModel(), hd), hd)[0] ** 2))) / noise,
            "time_s": time.perf_counter() - t0}
     if ref is not None:
         row.update(table=ref.term.cls.effect_id, cv_formula=ref.heldout_formula,

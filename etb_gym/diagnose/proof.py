@@ -117,7 +117,9 @@ def record_and_diagnose(name, seed, rng, truth, sensor_kw, args, workdir):
     rep = res.report
     row = {"seed": seed, "noise_deg": noise, "colour": colour, "closed": closed, "nameplate": args.nameplate,
            "loop_detected": rep.get("loop", {}).get(rec.name), "skipped": rep.get("skipped_candidates", []),
-           "verdict": rep["verdict"], "effects": [e["id"] for e in rep["effects"]], "rms_before": rep["rms_before_deg"],
+           "verdict": rep["verdict"], "effects": [e["id"] for e in rep["effects"]],
+           "shaped": [e["id"] for e in rep["effects"] if "shape" in e], "outside": rep.get("outside_catalogue"),
+           "rms_before": rep["rms_before_deg"],
            "rms_after": rep["rms_after_deg"], "noise_floor": rep["noise_floor_deg"], "time_s": elapsed}
     q = getattr(sensor_kw.get("reading"), "resolution_deg", None) or sensor_kw.get("resolution_deg", 90.0 / 4096)
     row["true_noise"] = math.sqrt(noise ** 2 + q ** 2 / 12.0)        # what the truth added (incl. quantization)
