@@ -37,6 +37,7 @@ LAMBDAS = tuple(10.0 ** np.arange(-3.0, 3.5, 0.5))   # roughness weights (relati
 GN_ITER = 3
 FD_STEP = 0.5            # finite-difference step in normalized units (a knot value moves by FD_STEP * scale)
 ANGLE_KNOTS = 16         # knots of a refined angle map over the stroke
+PROFILE_KNOTS = 17       # knots of a torque-constant or friction profile over the stroke (5.6 deg on 3B)
 JAC_SUBSTEPS = 20       # Jacobians at this integrator step (the residual at the model's own)
 RIDGE = 1e-4             # a small pull of the table towards zero (unvisited knots, collinearity with the spring)
 
@@ -181,10 +182,10 @@ def family_term(cid: str, base, data: Data) -> MapTerm | None:
         return MapTerm(f"{cid}_map", "mechanical", mx.AngleTorqueMap, angle_grid(base, data, ANGLE_KNOTS),
                        ("torque_Nm",), 0.005, "N m")
     if cid in ("shaft_flux_loss", "torque_constant_error"):
-        return MapTerm(f"{cid}_map", "magnetic", mx.TorqueConstantMap, angle_grid(base, data, ANGLE_KNOTS // 2 + 1),
+        return MapTerm(f"{cid}_map", "magnetic", mx.TorqueConstantMap, angle_grid(base, data, PROFILE_KNOTS),
                        ("delta_Nm_per_A",), 0.002, "N m/A")
     if cid == "angle_dependent_friction":
-        return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, ANGLE_KNOTS // 2 + 1),
+        return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, PROFILE_KNOTS),
                        ("level_Nm",), 0.005, "N m", (("presliding_rad", 2e-3),))
     if cid == "stribeck_friction":
         return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7),
