@@ -90,3 +90,28 @@ def test_non_formula_flux_loss_is_named_and_its_refined_twin_beats_the_formula(t
     rms = lambda p: float(np.sqrt(np.mean(angle_residuals_deg(simulate(p, res.sensor, hd), hd)[0] ** 2)))
     r_map, r_formula = rms(twin), rms(formula_twin)
     assert r_map < 0.8 * r_formula, (r_map, r_formula)
+
+
+def test_proof_runs_shapes_as_families_and_outside_families_only_as_shape_0():
+    from etb_gym.diagnose import proof
+    a = proof._parser().parse_args(["--shapes", "0", "2", "--seeds", "1", "--families", "clean", "backlash",
+                                    "current_ripple"])
+    assert proof._plan(a)[3] == [("clean", 0), ("backlash", 0), ("backlash@2", 0), ("current_ripple", 0)]
+    a = proof._parser().parse_args(["--shapes", "1", "2", "--seeds", "1"])
+    todo = [f for f, _ in proof._plan(a)[3]]
+    assert len(todo) == 2 * len(SHAPED) and all("@" in f for f in todo)
+
+
+def test_outside_score_needs_no_catalogue_effect_and_the_period():
+    from etb_gym.diagnose.proof import score_outside
+    rep = {"unexplained": [{"id": "unmodelled_torque", "outside_catalogue": True, "description": "outside ...",
+                            "shape": {"angle": {"periodic": False}, "current": {"periodic": True, "period_deg": 20.2}}}]}
+    row = {"effects": []}
+    score_outside(row, rep, 20.0)
+    assert row["named"] and row["period_deg"] == 20.2
+    row = {"effects": ["shaft_flux_loss"]}
+    score_outside(row, rep, 20.0)
+    assert not row["named"]
+    row = {"effects": []}
+    score_outside(row, rep, 25.0)                       # period more than 10 % off
+    assert not row["named"]
