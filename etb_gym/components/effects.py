@@ -18,7 +18,8 @@ from .effects_friction import (AngleDependentFriction, AngleDependentFrictionPar
 from .effects_mechanical import (AirflowTorque, AirflowTorqueParams, Backlash, BacklashParams, EndStopCompliance,
                                  EndStopComplianceParams, SpringAsymmetry, SpringAsymmetryParams)
 from .effects_maps import (MAP_EFFECTS, AngleFrictionMap, AngleTorqueMap, CurrentVoltageMap, SensorMap,  # noqa: F401
-                           SpeedFrictionMap, TorqueConstantMap)  # tables learned from data (diagnosis-shapes.md)
+                           SpeedFrictionMap, TorqueConstantMap,  # tables learned from data (diagnosis-shapes.md)
+                           CurrentInductanceMap, CurrentTorqueConstantMap)
 
 ODE_EFFECTS: dict[str, type[Effect]] = {c.effect_id: c for c in (
     CoilHeating, SupplyDrop, TorqueConstantError, InductanceSaturation, ShaftFluxLoss,

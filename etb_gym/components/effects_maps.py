@@ -10,6 +10,8 @@ first and last knot:
     speed_friction_map       T = -g(omega) w  (the same unit bristle; g over |omega|, one table per direction:
                              in steady sliding T = -g(omega) sign(omega), a friction curve over speed)
     current_voltage_map      drop u(i) in the coil loop (supply, bridge, contact losses of any shape)
+    current_torque_constant_map   torque dk(i) i, back-EMF dk(i) omega   (a torque constant varying with current)
+    current_inductance_map   L += dL(i)                                       (inductance over current)
     sensor_map               y = phi + d(phi): a reading error over angle (sensor side, not in the ODE)
 
 w is a unit bristle (the presliding state of ``angle_dependent_friction``), so a map value may be negative
@@ -269,6 +271,46 @@ class CurrentVoltageMap(_MapEffect):
     description = "voltage drop over current, a table learned from the data"
 
 
+# ------------------------------------------------------------------------------------ over current
+@dataclasses.dataclass(frozen=True)
+class CurrentTorqueConstantMapParams(_MapParams):
+    current_A: tuple = (-1.0, 1.0)                   # signed knots
+    delta_Nm_per_A: tuple = (0.0, 0.0)               # dk(i): torque dk(i) i, back-EMF dk(i) omega
+    grid, values = "current_A", ("delta_Nm_per_A",)
+
+
+@kernel
+def current_torque_constant_map_kernel(t, phi, omega, i, u, s, p, ds):
+    dk = map_value(i, p, 0)
+    return dk * i, dk * omega, 0.0
+
+
+class CurrentTorqueConstantMap(_MapEffect):
+    effect_id = "current_torque_constant_map"
+    Params = CurrentTorqueConstantMapParams
+    kernel = staticmethod(current_torque_constant_map_kernel)
+    description = "torque / back-EMF constant over current, a table learned from the data"
+
+
+@dataclasses.dataclass(frozen=True)
+class CurrentInductanceMapParams(_MapParams):
+    current_A: tuple = (-1.0, 1.0)                   # signed knots
+    delta_H: tuple = (0.0, 0.0)                      # dL(i): inductance added to the coil loop
+    grid, values = "current_A", ("delta_H",)
+
+
+@kernel
+def current_inductance_map_kernel(t, phi, omega, i, u, s, p, ds):
+    return 0.0, 0.0, map_value(i, p, 0)
+
+
+class CurrentInductanceMap(_MapEffect):
+    effect_id = "current_inductance_map"
+    Params = CurrentInductanceMapParams
+    kernel = staticmethod(current_inductance_map_kernel)
+    description = "inductance over current, a table learned from the data"
+
+
 # ------------------------------------------------------------------------------------ sensor over angle
 @dataclasses.dataclass(frozen=True)
 class SensorMapParams(_MapParams):
@@ -303,4 +345,4 @@ class SensorMap:
 
 
 MAP_EFFECTS = {c.effect_id: c for c in (AngleTorqueMap, TorqueConstantMap, AngleFrictionMap, SpeedFrictionMap,
-                                        CurrentVoltageMap)}
+                                        CurrentVoltageMap, CurrentTorqueConstantMap, CurrentInductanceMap)}

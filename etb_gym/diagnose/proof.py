@@ -46,8 +46,8 @@ from ..recordings import save_recording
 from .locate import moving_rms
 from .model import angle_residuals_deg, prepare, simulate
 from .proof_tables import DETECTABLE, loop_table, pair_table, summarize, table, targets  # noqa: F401
-from .proof_truth import (FAMILIES, PAIRS, QUICK, AirflowMap, effect_footprint, pair_footprints,  # noqa: F401
-                          sensor_model, truth_for, truth_plant)
+from .proof_truth import (FAMILIES, OUTSIDE, PAIRS, QUICK, SHAPES, AirflowMap, effect_footprint,  # noqa: F401
+                          family_shape, pair_footprints, sensor_model, truth_for, truth_plant)
 from .run import Options, diagnose
 from .synthetic import make_recording, nameplate_file_plant
 
@@ -117,9 +117,11 @@ def record_and_diagnose(name, seed, rng, truth, sensor_kw, args, workdir):
     rep = res.report
     row = {"seed": seed, "noise_deg": noise, "colour": colour, "closed": closed, "nameplate": args.nameplate,
            "loop_detected": rep.get("loop", {}).get(rec.name), "skipped": rep.get("skipped_candidates", []),
-           "verdict": rep["verdict"], "effects": [e["id"] for e in rep["effects"]], "rms_before": rep["rms_before_deg"],
+           "verdict": rep["verdict"], "effects": [e["id"] for e in rep["effects"]],
+           "shaped": [e["id"] for e in rep["effects"] if "shape" in e], "outside": rep.get("outside_catalogue"),
+           "rms_before": rep["rms_before_deg"],
            "rms_after": rep["rms_after_deg"], "noise_floor": rep["noise_floor_deg"], "time_s": elapsed}
-    q = sensor_kw.get("resolution_deg", 90.0 / 4096)
+    q = getattr(sensor_kw.get("reading"), "resolution_deg", None) or sensor_kw.get("resolution_deg", 90.0 / 4096)
     row["true_noise"] = math.sqrt(noise ** 2 + q ** 2 / 12.0)        # what the truth added (incl. quantization)
     return rec, held, res, row, out
 
@@ -160,21 +162,41 @@ def score_heldout(row, res, held):
 def run_case(family, seed, args, workdir):
     if family.startswith("pair:"):
         return run_pair(family[5:], seed, args, workdir)
-    rng = np.random.default_rng(10_000 * (FAMILIES.index(family) + 1) + seed)
+    fam, shape = family_shape(family)       # "family@k": the family's truth shape k (0: the candidate's formula)
+    rng = np.random.default_rng(10_000 * (FAMILIES.index(fam) + 1) + 1_000_000 * shape + seed)
     scale = rng.uniform(0.0, 1.0)
-    effects, sensor_kw, pname, ptrue = truth_for(family, rng, scale)
+    effects, sensor_kw, pname, ptrue = truth_for(fam, rng, scale, shape)
     truth = truth_plant(rng, effects, substeps=args.truth_substeps, nameplate=args.nameplate)
-    rec, held, res, row, out = record_and_diagnose(family, seed, rng, truth, sensor_kw, args, workdir)
+    rec, held, res, row, out = record_and_diagnose(family.replace("@", "_s"), seed, rng, truth, sensor_kw, args,
+                                                   workdir)
     rep = res.report
     ids = row["effects"]
     row = {"family": family, "seed": seed, "scale": scale, **row}
-    row["named"] = (not ids) if family == "clean" else (bool(ids) and ids[0] == family)
-    if family != "clean":                   # where the concealed effect acts: truth with vs without it (deg)
+    if fam in OUTSIDE:                      # no catalogue effect given, reported outside it, period within 10 %
+        score_outside(row, rep, ptrue)
+    else:
+        row["named"] = (not ids) if fam == "clean" else (bool(ids) and ids[0] == fam)
+    if fam != "clean":                      # where the concealed effect acts: truth with vs without it (deg)
         score_windows(row, rec, rep, *effect_footprint(truth, rec, effects, sensor_kw))
-    if pname and row["named"]:
-        row.update(score_param(rep, family, pname, ptrue) or {})
+    if pname and row["named"] and fam not in OUTSIDE:
+        row.update(score_param(rep, fam, pname, ptrue) or {})
     score_heldout(row, res, held)
     return row, out
+
+
+def score_outside(row, rep, period_true):
+    """A truth outside the catalogue: named when no catalogue effect is given as the explanation and the
+    report says "outside the catalogue" with the true period (within 10 %)."""
+    out = [u for u in rep["unexplained"] if u.get("outside_catalogue")]
+    sh = out[0].get("shape", {}) if out else {}
+    ang = next((d for d in (sh.get("angle", {}), sh.get("current", {})) if d.get("periodic")), {})
+    per = ang.get("period_deg") if ang.get("periodic") else None
+    row["catalogue_given"] = bool(row["effects"])
+    row["outside_id"] = out[0]["id"] if out else None
+    row["outside_summary"] = out[0]["description"] if out else None
+    row["period_deg"], row["period_true_deg"] = per, period_true
+    row["period_ok"] = bool(per is not None and abs(per - period_true) <= 0.1 * period_true)
+    row["named"] = bool(out) and not row["catalogue_given"] and row["period_ok"]
 
 
 # ---------------------------------------------------------------- two concealed effects at once
@@ -292,6 +314,10 @@ def _parser() -> argparse.ArgumentParser:
                                  epilog=__doc__.split("\n", 2)[2])
     ap.add_argument("--quick", action="store_true", help=f"families {QUICK}, 1 seed, 4 s recordings, small library")
     ap.add_argument("--families", nargs="+", choices=FAMILIES, default=None)
+    ap.add_argument("--shapes", nargs="+", type=int, choices=SHAPES, default=[0],
+                    help="truth shapes per family: 0 the candidate's formula (airflow: a Gaussian map), 1 and 2 "
+                         "shapes that are not the candidate's formula (docs/diagnosis.md, 'Truth shapes'); "
+                         "default 0; rows of shape k > 0 are families 'NAME@k'")
     ap.add_argument("--pairs", nargs="*", choices=PAIRS, default=None, metavar="PAIR",
                     help=f"run two-effect cases: these, or all of {PAIRS} if none is named (with --families: as well)")
     ap.add_argument("--seeds", type=int, default=20, help="seeds per family (default 20)")
@@ -323,6 +349,8 @@ def _plan(a):
         a.candidates = a.candidates or ["shaft_flux_loss", "spring_asymmetry", "sensor_offset_gain", "airflow_torque",
                                         "stribeck_friction"]
     fams = a.families or ([] if a.pairs is not None else FAMILIES)
+    fams = [f if k == 0 else f"{f}@{k}" for f in fams for k in a.shapes
+            if k == 0 or (f != "clean" and f not in OUTSIDE)]
     if a.pairs is not None:
         fams = list(fams) + ["pair:" + p for p in (a.pairs or PAIRS)]
     out = Path(a.out) if a.out else None

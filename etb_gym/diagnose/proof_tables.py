@@ -15,12 +15,15 @@ DETECTABLE = 3.0     # an effect that moves the reading by >= 3 x the noise (100
 def summarize(rows):
     """Per family: rates over all runs and over the runs whose effect is detectable (DETECTABLE)."""
     fams = []
-    for f in FAMILIES:
+    # a family's truth shapes k > 0 ("NAME@k", proof --shapes) get their own rows, after its shape 0
+    names = [n for f in FAMILIES for n in sorted({r["family"] for r in rows if r["family"].split("@")[0] == f})]
+    for f in names:
         rs = [r for r in rows if r["family"] == f]
         if not rs:
             continue
         # clean runs have nothing to detect; a coarse grid is read off the values whatever the noise
-        det = [r for r in rs if f in ("clean", "sensor_quantization") or r.get("effect_size", 0.0) >= DETECTABLE]
+        det = [r for r in rs if f.split("@")[0] in ("clean", "sensor_quantization")
+               or r.get("effect_size", 0.0) >= DETECTABLE]
         d = {"family": f, "runs": len(rs), "detectable": len(det),
              "named_rate": float(np.mean([r["named"] for r in rs])),
              "named_rate_detectable": float(np.mean([r["named"] for r in det])) if det else float("nan"),
@@ -93,7 +96,7 @@ def targets(rows) -> str:
     """The issue's targets against what the single-effect rows measured (Markdown)."""
     rows = [r for r in rows if not r["family"].startswith("pair:")]
     det = [r for r in rows if r["family"] != "clean" and
-           (r["family"] == "sensor_quantization" or r.get("effect_size", 0.0) >= DETECTABLE)]
+           (r["family"].split("@")[0] == "sensor_quantization" or r.get("effect_size", 0.0) >= DETECTABLE)]
     clean = [r for r in rows if r["family"] == "clean"]
     win = [r for r in det if "win_precision" in r and r["family"] not in ("sensor_quantization",)]
     par = [r for r in det if "param_rel_err" in r]
@@ -125,7 +128,7 @@ def loop_table(rows) -> str:
             if not rs:
                 continue
             det = [r for r in rs if r["family"] != "clean" and
-                   (r["family"] == "sensor_quantization" or r.get("effect_size", 0.0) >= DETECTABLE)]
+                   (r["family"].split("@")[0] == "sensor_quantization" or r.get("effect_size", 0.0) >= DETECTABLE)]
             cl = [r for r in rs if r["family"] == "clean"]
             t = [r["time_s"] for r in rs]
             ho = f"{np.median([r['heldout_rms_after'] / r['true_noise'] for r in det]):.2f}" if det else "-"

@@ -154,12 +154,18 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
         return cur, steps, res
     res.heldout_catalogue = h_cat = _heldout_catalogue(nominal, cur, steps, res.refinements, data)
     g = U.fit_generic(nominal, data, log=log)
+    if U.periodic_term(g.shape) is not None:
+        # periodic in angle: is it a torque of its own (detent) or one that scales with the current (ripple)?
+        gc = U.fit_generic(nominal, data, log=log, current_fine=True)
+        if gc.heldout < (1.0 - MIN_GAIN) * g.heldout and U.periodic_term(gc.shape) is not None:
+            log(f"  the periodic torque scales with the current: held-out {gc.heldout:.3g} against {g.heldout:.3g}")
+            g = gc
     res.generic = g
     rms_nom = U._rms_deg(nominal.spec, nominal.x, data)
     if U.compare(g, h_cat, rms_nom, data):
         named = {st.id for st in steps}
         dom = g.shape.get("significant_terms", [])
-        same = (dom and not g.shape.get("angle", {}).get("periodic", False)
+        same = (dom and U.periodic_term(g.shape) is None
                 and named & set(FAMILY_OF_TERM.get(dom[0], ())))
         if same:
             log(f"  the generic tables fit better, but their main term ({dom[0]}) is what {sorted(named)} "

@@ -37,6 +37,7 @@ LAMBDAS = tuple(10.0 ** np.arange(-3.0, 3.5, 0.5))   # roughness weights (relati
 GN_ITER = 3
 FD_STEP = 0.5            # finite-difference step in normalized units (a knot value moves by FD_STEP * scale)
 ANGLE_KNOTS = 16         # knots of a refined angle map over the stroke
+PROFILE_KNOTS = 17       # knots of a torque-constant or friction profile over the stroke (5.6 deg on 3B)
 JAC_SUBSTEPS = 20       # Jacobians at this integrator step (the residual at the model's own)
 RIDGE = 1e-4             # a small pull of the table towards zero (unvisited knots, collinearity with the spring)
 
@@ -128,6 +129,16 @@ def angle_grid(base, data: Data, n: int) -> np.ndarray:
     return np.linspace(lo, hi, n)
 
 
+def local_angle_grid(base, centre_rad: float, below_deg: float, above_deg: float, step_deg: float = 0.5) -> np.ndarray:
+    """Knots every ``step_deg`` from ``below_deg`` under to ``above_deg`` over ``centre_rad``, inside the plant's
+    stroke (a contact's neighbourhood: limp-home, a stop). The table holds its end values beyond the grid, as a
+    contact's torque change does (a backlash shifts the spring's torque by a constant beyond the play)."""
+    lo = max(centre_rad - math.radians(below_deg), base.angle_min_rad if math.isfinite(base.angle_min_rad) else -math.inf)
+    hi = min(centre_rad + math.radians(above_deg), base.angle_max_rad if math.isfinite(base.angle_max_rad) else math.inf)
+    n = max(int(round(math.degrees(hi - lo) / step_deg)) + 1, 3)
+    return np.linspace(lo, hi, n)
+
+
 def speed_grid(data: Data, n: int = 7) -> np.ndarray:
     """0 and n-1 knots spaced logarithmically up to the fastest speed the recordings reach."""
     w = np.abs(data_speeds_rad_s(data))
@@ -153,16 +164,28 @@ def current_grid(data: Data, base, n: int = 9) -> np.ndarray:
 
 
 # which table refines which family's formula
+def family_terms(cid: str, base, data: Data) -> list:
+    """The maps that may refine candidate ``cid`` (the one with the lowest held-out error is tried):
+    :func:`family_term`'s, and for a torque-constant error also one over current (a constant that saturates
+    or differs by current direction)."""
+    t = family_term(cid, base, data)
+    out = [t] if t is not None else []
+    if cid == "torque_constant_error":
+        out.append(MapTerm(f"{cid}_current_map", "electrical", mx.CurrentTorqueConstantMap,
+                           current_grid(data, base, 9), ("delta_Nm_per_A",), 0.002, "N m/A"))
+    return out
+
+
 def family_term(cid: str, base, data: Data) -> MapTerm | None:
     """The map that refines candidate ``cid`` (None: the family has no table form here)."""
     if cid in ("airflow_torque", "spring_asymmetry"):
         return MapTerm(f"{cid}_map", "mechanical", mx.AngleTorqueMap, angle_grid(base, data, ANGLE_KNOTS),
                        ("torque_Nm",), 0.005, "N m")
     if cid in ("shaft_flux_loss", "torque_constant_error"):
-        return MapTerm(f"{cid}_map", "magnetic", mx.TorqueConstantMap, angle_grid(base, data, ANGLE_KNOTS // 2 + 1),
+        return MapTerm(f"{cid}_map", "magnetic", mx.TorqueConstantMap, angle_grid(base, data, PROFILE_KNOTS),
                        ("delta_Nm_per_A",), 0.002, "N m/A")
     if cid == "angle_dependent_friction":
-        return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, ANGLE_KNOTS // 2 + 1),
+        return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, PROFILE_KNOTS),
                        ("level_Nm",), 0.005, "N m", (("presliding_rad", 2e-3),))
     if cid == "stribeck_friction":
         return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7),
@@ -170,6 +193,15 @@ def family_term(cid: str, base, data: Data) -> MapTerm | None:
     if cid == "supply_drop":
         return MapTerm(f"{cid}_map", "electrical", mx.CurrentVoltageMap, current_grid(data, base, 9),
                        ("drop_V",), 0.02, "V")
+    if cid == "inductance_saturation":
+        return MapTerm(f"{cid}_map", "electrical", mx.CurrentInductanceMap, current_grid(data, base, 9),
+                       ("delta_H",), 0.0005, "H")
+    if cid == "backlash" and math.isfinite(base.limp_home_rad):     # the springs' torque around limp-home
+        return MapTerm(f"{cid}_map", "mechanical", mx.AngleTorqueMap,
+                       local_angle_grid(base, base.limp_home_rad, 4.0, 4.0), ("torque_Nm",), 0.005, "N m")
+    if cid == "end_stop_compliance" and math.isfinite(base.angle_max_rad):   # a contact before the open stop
+        return MapTerm(f"{cid}_map", "mechanical", mx.AngleTorqueMap,
+                       local_angle_grid(base, base.angle_max_rad, 6.0, 0.0), ("torque_Nm",), 0.02, "N m")
     return None
 
 
@@ -446,22 +478,27 @@ class Refinement:
 
 
 def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refinement | None:
-    """Refine accepted candidate ``cid`` of ``final`` by its table (None: no table form for the family)."""
-    term = family_term(cid, final.spec.base, data)
-    if term is None:
+    """Refine accepted candidate ``cid`` of ``final`` by its table (None: no table form for the family); with
+    several table forms (:func:`family_terms`) the one with the lowest held-out error."""
+    terms = family_terms(cid, final.spec.base, data)
+    if not terms:
         return None
-    spec_m = final.spec.with_candidate(term.candidate())
-    x0 = np.concatenate([final.x, np.zeros(term.n_coef)])
     pb_formula = Problem.make(final.spec, final.x, ("nominal", cid))
     h_formula = heldout_error(pb_formula, data)
-    pb = Problem.make(spec_m, x0, ("nominal", term.id), [term])
-    pf = fit_penalized(pb, data, log=None)
-    pb_fit = dataclasses.replace(pb, x=pf.fit.x)
-    h_map = heldout_error(pb_fit, data, pf.lams, pf.jac)
-    kept = h_map < (1.0 - MIN_GAIN) * h_formula
-    log(f"  shape of {cid}: table over {term.cls.grid_field} ({term.grid.size} knots, roughness weight "
-        f"{pf.lams_rel[0]:.2g}): held-out {h_formula:.3g} -> {h_map:.3g} ({'kept' if kept else 'not kept'})")
-    return Refinement(cid, term, pf.fit, pf.lams_rel[0], h_formula, h_map, kept)
+    best = None
+    for term in terms:
+        spec_m = final.spec.with_candidate(term.candidate())
+        x0 = np.concatenate([final.x, np.zeros(term.n_coef)])
+        pb = Problem.make(spec_m, x0, ("nominal", term.id), [term])
+        pf = fit_penalized(pb, data, log=None)
+        pb_fit = dataclasses.replace(pb, x=pf.fit.x)
+        h_map = heldout_error(pb_fit, data, pf.lams, pf.jac)
+        kept = h_map < (1.0 - MIN_GAIN) * h_formula
+        log(f"  shape of {cid}: table over {term.cls.grid_field} ({term.grid.size} knots, roughness weight "
+            f"{pf.lams_rel[0]:.2g}): held-out {h_formula:.3g} -> {h_map:.3g} ({'kept' if kept else 'not kept'})")
+        if best is None or h_map < best.heldout_map:
+            best = Refinement(cid, term, pf.fit, pf.lams_rel[0], h_formula, h_map, kept)
+    return best
 
 
 def plot_table(ax, term: MapTerm, table: dict, title: str):

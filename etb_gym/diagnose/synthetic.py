@@ -102,11 +102,12 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
                    noise_deg: float = 0.01, resolution_deg: float = 90.0 / 4096, colour: float = 0.0,
                    offset_deg: float = 0.0, gain: float = 1.0, delay_steps: int = 0,
                    current_noise_A: float = 0.01, with_current: bool = True, name: str = "rec.csv",
-                   controller=None) -> Recording:
+                   controller=None, reading=None) -> Recording:
     """One rig-like recording of ``plant`` (the truth). ``colour`` in [0, 1): AR(1) coefficient of the noise.
     Closed loop: ``controller`` (default: the reference PID designed on the nominal 3B plant; for another
     nameplate pass one designed on that nameplate) acts on these same readings (noise, quantization,
-    offset/gain, delay)."""
+    offset/gain, delay). ``reading``: a truth shape of the reading (``proof``'s truth_shapes.SensorShape: its
+    ``stream(phi, noise)`` gives, sample by sample, what the sensor then reads), or None."""
     dt = plant.control_period_s
     nq = int(round(QUIET_S / dt))                    # the rig idles (duty 0) before the run starts
     n = nq + int(round((duration_s - QUIET_S) / dt))
@@ -124,8 +125,12 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
         lh = math.degrees(plant.limp_home_rad)
         sensor.reset(plant.limp_home_rad + noise[0])
 
+        if reading is not None:
+            reading.reset()
+
         def read(k, phi):
-            return math.degrees(sensor.read(phi + noise[k], rng))
+            v = phi + noise[k] if reading is None else reading.stream(phi, noise[k])
+            return math.degrees(sensor.read(v, rng))
 
         duty, X, y = closed_loop(plant, np.concatenate([np.full(nq, lh), ref]), read, controller=controller,
                                  enable_k=nq)
@@ -133,7 +138,8 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
     else:
         duty = np.concatenate([np.zeros(nq), open_loop_duty(duration_s - QUIET_S, rng, dt)])[:n]
         tr = plant.simulate(duty=duty[:-1], angle_deg=math.degrees(plant.limp_home_rad))
-        y = np.degrees(sensor.measure(tr.angle_rad + noise, rng))
+        v = tr.angle_rad + noise if reading is None else reading.apply(tr.angle_rad, noise)
+        y = np.degrees(sensor.measure(v, rng))
         cur = tr.current_A
     t = np.arange(n) * dt
     V = plant.supply.voltage_V

@@ -43,12 +43,18 @@ GN_ITER = 6              # Gauss-Newton iterations of the generic fit (stops ear
 IMPORTANCE_SHARE = 0.3  # a table matters if removing it costs this share of what the dominant one costs
 
 
-def generic_terms(base, data: Data, voltage: bool = True) -> list[MapTerm]:
-    g = angle_grid(base, data, ANGLE_KNOTS)
-    terms = [MapTerm("unmodelled_angle", "unmodelled", mx.AngleTorqueMap, g, ("torque_Nm",), 0.005, "N m"),
+CURRENT_COARSE_ANGLE_KNOTS = 9   # the angle table's knots when the current table takes the fine grid
+
+
+def generic_terms(base, data: Data, voltage: bool = True, current_fine: bool = False) -> list[MapTerm]:
+    """The generic tables. ``current_fine``: the torque proportional to current gets the fine angle grid (a
+    ripple periodic in angle that scales with the current) and the current-free torque a coarse one."""
+    na, nc = (CURRENT_COARSE_ANGLE_KNOTS, ANGLE_KNOTS) if current_fine else (ANGLE_KNOTS, 5)
+    terms = [MapTerm("unmodelled_angle", "unmodelled", mx.AngleTorqueMap, angle_grid(base, data, na), ("torque_Nm",),
+                     0.005, "N m"),
              MapTerm("unmodelled_speed", "unmodelled", mx.SpeedFrictionMap, speed_grid(data, 6),
                      ("opening_Nm", "closing_Nm"), 0.005, "N m", (("presliding_rad", 2e-3),)),
-             MapTerm("unmodelled_current", "unmodelled", mx.TorqueConstantMap, angle_grid(base, data, 5),
+             MapTerm("unmodelled_current", "unmodelled", mx.TorqueConstantMap, angle_grid(base, data, nc),
                      ("delta_Nm_per_A",), 0.002, "N m/A")]
     if voltage:
         terms.append(MapTerm("unmodelled_voltage", "unmodelled", mx.CurrentVoltageMap, current_grid(data, base, 7),
@@ -73,11 +79,12 @@ class Generic:
         return "unmodelled_voltage" if t == "unmodelled_voltage" else "unmodelled_torque"
 
 
-def fit_generic(nominal: F.FitResult, data: Data, log=print) -> Generic:
-    """The calibrated nominal model plus the generic tables, fitted by penalized output error."""
+def fit_generic(nominal: F.FitResult, data: Data, log=print, current_fine: bool = False) -> Generic:
+    """The calibrated nominal model plus the generic tables, fitted by penalized output error
+    (``current_fine``: see :func:`generic_terms`)."""
     base_spec = Spec(nominal.spec.base, (), nominal.spec.nominal)
     x_nom = np.asarray(nominal.x, float)[:len(base_spec.params)]
-    terms = generic_terms(base_spec.base, data)
+    terms = generic_terms(base_spec.base, data, current_fine=current_fine)
     spec = base_spec
     for t in terms:
         spec = spec.with_candidate(t.candidate())
@@ -158,6 +165,19 @@ def periodicity(angle_deg: np.ndarray, value: np.ndarray, weight: np.ndarray | N
     P = float(fine[int(np.argmax(rf))])
     r2b, b = fit(P)
     amp_h = [math.hypot(b[3 + 2 * h], b[4 + 2 * h]) for h in range(harmonics)]
+    # a multiple of the period whose h-th harmonic carries the waveform (a 60 deg fit of a 20 deg square wave,
+    # its 3rd harmonic the fundamental, the others fitting the trend): the period is P/h if that fits nearly as well
+    h_dom = int(np.argmax(amp_h)) + 1
+    while h_dom > 1 and P / h_dom >= lo:
+        fine = np.linspace(0.97 * P / h_dom, 1.03 * P / h_dom, 41)
+        rf = [fit(Q)[0] for Q in fine]
+        Q = float(fine[int(np.argmax(rf))])
+        r2q, bq = fit(Q)
+        if r2q < max(0.85 * r2b, PERIODIC_R2):
+            break
+        P, r2b, b = Q, r2q, bq
+        amp_h = [math.hypot(b[3 + 2 * h], b[4 + 2 * h]) for h in range(harmonics)]
+        h_dom = int(np.argmax(amp_h)) + 1
     ph = [2 * math.pi * (h + 1) * a / P for h in range(harmonics)]
     per = sum(b[3 + 2 * h] * np.cos(ph[h]) + b[4 + 2 * h] * np.sin(ph[h]) for h in range(harmonics))
     e = np.array(amp_h) ** 2
@@ -165,6 +185,13 @@ def periodicity(angle_deg: np.ndarray, value: np.ndarray, weight: np.ndarray | N
                harmonic_share=float(e[1:].sum() / max(e.sum(), 1e-300)),
                periodic=bool(r2b >= PERIODIC_R2 and span / P >= MIN_CYCLES))
     return out
+
+
+def resolvable(grid_deg: np.ndarray) -> tuple:
+    """The trial periods a table on ``grid_deg`` can show: at least 4 knots per period (a coarse table's
+    wiggles are not a period)."""
+    step = float(np.max(np.diff(grid_deg))) if len(grid_deg) > 1 else PERIODS_DEG[1]
+    return (max(PERIODS_DEG[0], 4.0 * step), PERIODS_DEG[1])
 
 
 def _visited(grid_rad: np.ndarray, data: Data) -> np.ndarray:
@@ -188,7 +215,7 @@ def describe(g: Generic, data: Data) -> dict:
     m = vis >= 5
     adeg = np.degrees(grid)
     tq = np.asarray(ta.params.torque_Nm)
-    per = periodicity(adeg[m], tq[m], np.minimum(vis[m], 200.0)) if m.sum() >= 8 else \
+    per = periodicity(adeg[m], tq[m], np.minimum(vis[m], 200.0), resolvable(adeg)) if m.sum() >= 8 else \
         {"periodic": False, "period_deg": None, "amplitude": 0.0, "r2": 0.0, "cycles": 0.0, "harmonic_share": 0.0}
     shape["angle"] = {"periodic": per["periodic"], "period_deg": per["period_deg"], "amplitude_Nm": per["amplitude"],
                       "periodic_r2": per["r2"], "harmonic_share": per["harmonic_share"],
@@ -219,7 +246,21 @@ def describe(g: Generic, data: Data) -> dict:
         elif k == "unmodelled_current":
             tc = g.tables[k]
             dk = np.asarray(tc.params.delta_Nm_per_A)
-            words.append(f"a torque proportional to current, {dk.min():+.3g} to {dk.max():+.3g} N m/A over the stroke")
+            cg = np.asarray(tc.params.angle_rad)
+            cper = {"periodic": False}
+            if cg.size >= 20:                           # fine grid: is the current's torque periodic in angle?
+                cv = _visited(cg, data)
+                cm = cv >= 5
+                if cm.sum() >= 8:
+                    cper = periodicity(np.degrees(cg[cm]), dk[cm], np.minimum(cv[cm], 200.0),
+                                       resolvable(np.degrees(cg)))
+            if cper["periodic"]:
+                words.append(f"a torque proportional to the current and periodic in angle: period "
+                             f"{cper['period_deg']:.1f} deg, amplitude {cper['amplitude']:.3g} N m/A")
+            else:
+                words.append(f"a torque proportional to current, {dk.min():+.3g} to {dk.max():+.3g} N m/A over the stroke")
+            shape["current"] = {"periodic": bool(cper["periodic"]), "period_deg": cper.get("period_deg"),
+                                "amplitude_Nm_per_A": cper.get("amplitude", 0.0)}
         elif k == "unmodelled_voltage":
             tv = g.tables[k]
             ci, dv = np.asarray(tv.params.current_A), np.asarray(tv.params.drop_V)
@@ -242,7 +283,16 @@ def compare(generic: Generic, heldout_catalogue: float, rms_nominal_deg: float, 
     if generic.rms_deg > (1.0 - RMS_GAIN) * rms_nominal_deg:
         return False
     better = generic.heldout < (1.0 - GAIN_OUT) * heldout_catalogue
-    periodic = generic.shape.get("angle", {}).get("periodic", False) and \
-        "unmodelled_angle" in generic.shape.get("significant_terms", []) and \
-        generic.heldout <= 1.02 * heldout_catalogue
+    periodic = periodic_term(generic.shape) is not None and generic.heldout <= 1.02 * heldout_catalogue
     return bool(better or periodic)
+
+
+def periodic_term(shape: dict) -> dict | None:
+    """The significant table that is periodic in angle (the angle torque's, else the current's): its
+    description (periodic, period_deg, ...), or None."""
+    sig = shape.get("significant_terms", [])
+    for key, term in (("angle", "unmodelled_angle"), ("current", "unmodelled_current")):
+        d = shape.get(key, {})
+        if d.get("periodic") and term in sig:
+            return d
+    return None
