@@ -1,12 +1,33 @@
-"""One proof case (family[@shape], seed) diagnosed with the proof's settings, its output kept in out/dev_<case>/
-(report.json, shapes.png, ...); prints the row. Usage: python scripts/proof_case.py FAMILY[@K] SEED [DURATION_S]"""
-import sys, json, argparse, tempfile
+"""Diagnose one proof case (family[@shape], seed) with the proof's settings and keep its output
+(report.json, shapes.png, ...) in out/dev_<case>_<seed>/; prints the proof's row for it.
+
+    python scripts/proof_case.py shaft_flux_loss@1 0 --duration 6
+"""
+import argparse
+import json
 from pathlib import Path
+
 from etb_gym.diagnose import proof
-a = proof._parser().parse_args(["--duration", sys.argv[3] if len(sys.argv) > 3 else "6", "--jobs", "1"])
-fam, seed = sys.argv[1], int(sys.argv[2])
-work = Path("out/dev_" + fam.replace("@", "_s") + f"_{seed}")
-work.mkdir(parents=True, exist_ok=True)
-row, outdir = proof.run_case(fam, seed, a, str(work))
-print(json.dumps({k: row.get(k) for k in ("family", "effects", "verdict", "named", "outside_summary", "period_deg",
-      "period_true_deg", "effect_size", "heldout_rms_before", "heldout_rms_after", "true_noise", "time_s")}, indent=1))
+
+KEYS = ("family", "effects", "verdict", "named", "outside_summary", "period_deg", "period_true_deg", "effect_size",
+        "heldout_rms_before", "heldout_rms_after", "true_noise", "time_s")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("case", help="proof family, optionally with a truth shape: NAME or NAME@K (K = 0, 1, 2)")
+    ap.add_argument("seed", type=int, help="the proof's seed for this case")
+    ap.add_argument("--duration", type=float, default=6.0, help="recording length [s] (default 6)")
+    ap.add_argument("--out", default="out", help="parent folder of the case's output folder (default out)")
+    a = ap.parse_args(argv)
+    if a.duration <= 0:
+        ap.error(f"--duration = {a.duration} is invalid: expected a positive length in seconds")
+    opts = proof._parser().parse_args(["--duration", str(a.duration), "--jobs", "1"])
+    work = Path(a.out) / ("dev_" + a.case.replace("@", "_s") + f"_{a.seed}")
+    work.mkdir(parents=True, exist_ok=True)
+    row, _ = proof.run_case(a.case, a.seed, opts, str(work))
+    print(json.dumps({k: row.get(k) for k in KEYS}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
