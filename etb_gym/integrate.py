@@ -196,6 +196,10 @@ def resolve(t, h, hp, r, x, u, P, dx, aux{c_args()}):
     m equal pieces, each split where it crosses an edge (at most MAX_SPLITS times): m = 1 if h r <= RHO_MIN (the contact is resolved
     by h itself), else CONTACT_PIECES, or more if needed for h r / m <= RHO_MAX (at most MAX_PIECES).
     Returns what step returns."""
+    x = borrow(x)
+    P = borrow(P)
+    dx = borrow(dx)
+    aux = borrow(aux)
 {resolve_block}
 
 def step(t, h, hp, r, x, u, P, dx, aux{c_args()}):
@@ -256,6 +260,8 @@ def control_step_dx(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux, 
 
 def physical(x, V, P):
     """True if the state is finite and every component finds it plausible (supply V)."""
+    x = borrow(x)
+    P = borrow(P)
     ok = True
     for j in range(N_STATES):
         if not math.isfinite(x[j]):
@@ -331,10 +337,19 @@ def observe(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, y, gain, lag
 def control_step_group(X, duty, supply_V, P, T0, AUX, DX, OK, b0, dt, n_sub):
     """Plants b0 .. b0+GROUP-1 through one averaged-PWM control period in lockstep: each plant's operations
     are exactly those of control_step_dx, but the independent chains interleave, which lets the CPU
-    overlap them (a substep is one long dependency chain of exp, sqrt and divisions). X, P, AUX
-    come borrowed from batch_step; DX is borrowed here (all are the caller's arguments or locals that
-    outlive this call)."""
+    overlap them (a substep is one long dependency chain of exp, sqrt and divisions). Every array is borrowed
+    here again (all are the caller's arguments or locals that outlive this call): that the caller borrowed them
+    is a runtime fact this function's compilation cannot see, so without it every slice a kernel call takes
+    would call NRT_incref/NRT_decref (a real function call that spills the live registers, on the null count of
+    the borrowed view; ~30 % of 1A's substep, docs/speed.md "Round 4")."""
+    X = borrow(X)
+    duty = borrow(duty)
+    supply_V = borrow(supply_V)
+    P = borrow(P)
+    T0 = borrow(T0)
+    AUX = borrow(AUX)
     DX = borrow(DX)
+    OK = borrow(OK)
     n = substeps_for(dt, n_sub)
     h = dt / n
 {setup}{hp0}    for k in range(n):
@@ -413,7 +428,7 @@ JIT_OPTIONS = {
     "batch_step": {"parallel": True},
     "batch_step_serial": {},
 }
-STEPPER_REVISION = "6"   # bump when kernel_cache.borrow() or JIT_OPTIONS change: part of the kernel-cache digest
+STEPPER_REVISION = "7"   # bump when kernel_cache.borrow() or JIT_OPTIONS change: part of the kernel-cache digest
 
 
 class Engine:

@@ -3,6 +3,7 @@
 this tree alone, or side by side with a git revision (fresh processes, alternating, medians).
 
     python scripts/stepper_cost.py --models 3B 2C 1A --substeps 5 10 20 --baseline 5dc542e --rounds 3
+    python scripts/stepper_cost.py --baseline 5dc542e bd25a5d --rounds 5     # several revisions, one table
     python scripts/stepper_cost.py --worker 3B,2C 5,20 0.4 1024     # one round of this tree, JSON on stdout
 
 Each plant starts at rest; every control period draws a new duty in [-1, 1] per plant (the plates hit the stops
@@ -61,7 +62,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=0.4, help="timed seconds per case and round (default 0.4)")
     ap.add_argument("--n", type=int, default=1024, help="plants per batch (default 1024)")
     ap.add_argument("--rounds", type=int, default=3, help="alternating rounds (default 3)")
-    ap.add_argument("--baseline", metavar="REV", default=None, help="a git revision to measure side by side")
+    ap.add_argument("--baseline", metavar="REV", nargs="+", default=[],
+                    help="git revision(s) to measure side by side with this tree (ratios: this tree / each)")
     ap.add_argument("--worker", nargs=4, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.worker:
@@ -72,11 +74,13 @@ def main(argv=None) -> int:
         ap.error("expected --rounds >= 1, --n >= 2, --seconds > 0 and --substeps >= 1")
     args = [",".join(a.models), ",".join(map(str, a.substeps)), str(a.seconds), str(a.n)]
     with tempfile.TemporaryDirectory(prefix="etb_stepper_cost_") as tmp:
-        trees = {"this tree": None}
+        trees = {}
         if a.baseline:
             from etb_gym.speed_baseline import extract_revision
 
-            trees = {a.baseline: str(extract_revision(a.baseline, Path(tmp))[1]), "this tree": None}
+            for k, rev in enumerate(a.baseline):
+                trees[rev] = str(extract_revision(rev, Path(tmp) / f"rev{k}")[1])
+        trees["this tree"] = None
         res = {k: [] for k in trees}
         for r in range(a.rounds):
             for label, path in trees.items():
@@ -87,13 +91,14 @@ def main(argv=None) -> int:
                     raise SystemExit(f"stepper_cost: the {label} run failed:\n{out.stderr[-3000:]}")
                 res[label].append(json.loads(out.stdout.strip().splitlines()[-1]))
                 print(f"round {r + 1}/{a.rounds} {label}: load {os.getloadavg()[0]:.2f}", file=sys.stderr, flush=True)
-    labels = list(trees)
-    print("| case | " + " | ".join(f"{k} CPU ns" for k in labels) + (" | ratio |" if len(labels) == 2 else " |"))
-    print("|---" * (len(labels) + 1 + (len(labels) == 2)) + "|")
+    labels, base = list(trees), list(trees)[:-1]
+    print("| case | " + " | ".join(f"{k} CPU ns" for k in labels) + " |"
+          + "".join(f" this tree / {k} |" for k in base))
+    print("|---" * (len(labels) + 1 + len(base)) + "|")
     for key in res[labels[0]][0]:
         med = [statistics.median(run[key]["cpu_ns"] for run in res[k]) for k in labels]
-        ratio = f" {med[1] / med[0]:.2f} |" if len(med) == 2 else ""
-        print(f"| {key} | " + " | ".join(f"{v:.0f}" for v in med) + " |" + ratio)
+        print(f"| {key} | " + " | ".join(f"{v:.0f}" for v in med) + " |"
+              + "".join(f" {med[-1] / m:.2f} |" for m in med[:-1]))
     return 0
 
 

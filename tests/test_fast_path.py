@@ -232,3 +232,38 @@ def test_thread_pool_sleeps_unless_the_user_chose(env, expected):
     pool, policy = out.split("|")
     assert pool == expected
     assert policy == env.get("OMP_WAIT_POLICY", "PASSIVE" if not env else "-")
+
+
+@needs_numba
+def test_substep_loop_makes_no_reference_count_calls():
+    """The lockstep group, the careful contact path and the plausibility check borrow their arrays themselves:
+    a kernel's slice of a borrowed view then needs no NRT_incref/NRT_decref call (a real call that spills every
+    live register; without the borrows 1A's control_step_group held 44 of them and ran 1.4-1.6x slower,
+    docs/speed.md "Round 4"). Compiled in memory (the cached build cannot show its LLVM IR)."""
+    import re
+
+    import numba
+
+    from etb_gym import integrate
+    from etb_gym.kernel_cache import borrow
+
+    p = make_plant("1A")
+    ns = dict(p.engine.bound, prange=numba.prange, borrow=borrow)
+    exec(compile(p.engine.source, "<test stepper>", "exec"), ns)
+    for name, opts in integrate.JIT_OPTIONS.items():
+        ns[name] = numba.njit(**opts)(ns[name])
+    N = 4
+    X, P = np.tile(p.initial_state(), (N, 1)), np.tile(p.P, (N, 1))
+    AUX, ok = np.zeros((N, len(p.components))), np.empty(N, np.bool_)
+    ns["batch_step_serial"](X, np.full(N, 0.9), np.full(N, 12.0), P, np.zeros(N), 1e-3, 20, False, 5000.0, AUX, ok)
+    assert ok.all()
+    counts = {}
+    for fn in ("control_step_group", "resolve", "physical", "control_step_dx"):
+        for ll in ns[fn].inspect_llvm().values():
+            for m in re.finditer(r"^define [^@]*@(\S+?)\(.*?^}", ll, re.S | re.M):
+                if "cpython" in m.group(1) or m.group(1).startswith("cfunc") or "NRT_" in m.group(1):
+                    continue
+                short = re.sub(r"^_ZN13_3cdynamic_3e\d+", "", m.group(1)).split("B")[0]
+                counts[short] = len(re.findall(r"call void @NRT_(?:in|de)cref", m.group(0)))
+    assert {"control_step_group", "resolve", "physical", "control_step_dx"} <= set(counts), counts
+    assert not any(counts.values()), f"reference-count calls in the stepper: {counts}"
