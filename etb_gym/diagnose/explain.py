@@ -2,7 +2,8 @@
 
 One round:
   1. screen   every remaining candidate is added and all parameters (nominal + effects) refitted from the
-              current estimate (a bounded number of evaluations); dBIC = m_eff ln(RSS_c/RSS) + dp ln(m_eff)
+              current estimate (a bounded number of evaluations, after a coarse scan of the candidate's main
+              parameter picks its start: fit.scan_start); dBIC = m_eff ln(RSS_c/RSS) + dp ln(m_eff)
               with m_eff = m / tau_int of the candidate's residual. Screening is a ranking, so it runs at the
               coarser integrator step SCREEN_SUBSTEPS (the current model is refitted there too, for a fair
               RSS); validation and the accepted fit run at the diagnosis's own step
@@ -56,12 +57,12 @@ class Skipped(str):
 
 
 def _task(args):
-    kind, base_dict, nominal, ids, x0, nfev = args
+    kind, base_dict, nominal, ids, x0, nfev, *scan = args
     data = _CTX["data"]
     try:
         spec = _spec(base_dict, nominal, ids)
         if kind == "fit":
-            fr = F.fit(spec, data, x0, max_nfev=nfev)
+            fr = F.fit(spec, data, x0, max_nfev=nfev, scan=scan[0] if scan else None)
             return fr.x, fr.rss, fr.m, fr.jac, fr.nfev, fr.tau_int, fr.block_scores
         return F.cross_validate(spec, data, x0, max_nfev=nfev)
     except (ValueError, TypeError, FloatingPointError, ZeroDivisionError, OverflowError, np.linalg.LinAlgError) as e:
@@ -144,7 +145,8 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
     tasks = [("fit", screen_dict, ctx.nominal, active, cur.x, SCREEN_NFEV)]
     for c in remaining:
         spec = cur.spec.with_candidate(CANDIDATES[c])
-        tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), extend(cur.x, spec), SCREEN_NFEV))
+        tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), extend(cur.x, spec), SCREEN_NFEV,
+                      len(cur.x)))
     ctx.describe(f"round {rnd + 1}: screening {len(tasks) - 1} candidates")
     res = ctx.runner.map(tasks, ctx.progress)
     if isinstance(res[0], Skipped):         # the current model failed at the screening step: stop here
@@ -217,7 +219,7 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int):
     active = tuple(c.id for c in cur.spec.candidates)
     full = None
     for g, d, c, fr in gains:
-        r = ctx.runner.map([("fit", ctx.base_dict, ctx.nominal, active + (c,), fr.x, FULL_NFEV)])[0]
+        r = ctx.runner.map([("fit", ctx.base_dict, ctx.nominal, active + (c,), fr.x, FULL_NFEV, len(cur.x))])[0]
         if isinstance(r, Skipped):
             ctx.skip(c, rnd, r)
             continue

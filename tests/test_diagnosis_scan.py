@@ -1,0 +1,60 @@
+"""The coarse scan before a candidate's local fit (fit.scan_start): where it looks, and a case it rescues."""
+import importlib.util
+import math
+import pathlib
+
+import numpy as np
+import pytest
+
+from etb_gym.diagnose import fit as F
+from etb_gym.diagnose.candidates import CANDIDATES
+from etb_gym.diagnose.model import Spec, prepare, restart_view
+from etb_gym.diagnose.run import choose_substeps
+from etb_gym.plant import make_plant
+
+
+def test_scan_offsets_are_log_spaced_inside_the_bounds_on_each_side_with_room():
+    d = F.scan_offsets(-100.0, 100.0)
+    pos = sorted(x for x in d if x > 0)
+    neg = sorted(-x for x in d if x < 0)
+    assert pos == pytest.approx(neg) and len(pos) == F.SCAN_POINTS
+    assert max(pos) == pytest.approx(100.0) and min(pos) >= F.SCAN_MIN
+    assert all(b / a >= F.SCAN_RATIO - 1e-9 for a, b in zip(pos, pos[1:]))
+    # a start on its lower bound (backlash's play cannot be negative) is scanned upwards only
+    assert all(0 < x <= 18.7 for x in F.scan_offsets(1e-9, 18.7))
+    assert F.scan_offsets(-0.1, 0.2) == []          # no room: nothing to scan, the local fit alone
+    lo, hi = -1.33, 18.7
+    assert all(lo <= x <= hi for x in F.scan_offsets(lo, hi))
+
+
+def _script():
+    spec = importlib.util.spec_from_file_location(
+        "scan_start_cases", pathlib.Path(__file__).resolve().parents[1] / "scripts" / "scan_start_cases.py")
+    S = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(S)
+    return S
+
+
+def test_scan_finds_a_closed_loop_sensor_offset_the_local_fit_alone_misses():
+    """Closed loop, 0.5 deg sensor offset, the reference closes the plate to the stop: the observer residual is
+    steep in the offset where the plate meets the stop, so the screening fit (SCREEN_NFEV evaluations) from
+    offset 0 barely moves; started from the scan's best point it lands near the truth's 0.5 deg."""
+    from etb_gym.diagnose.explain import SCREEN_NFEV, extend
+    rec = _script().offset_closed_recording(duration_s=2.6, offset_deg=0.5, noise_deg=0.01, seed=0)
+    base = make_plant("3B")
+    data = prepare([rec], base.supply.voltage_V, residual="observer")
+    assert data.recs[0].residual == "observer"
+    base = base.replace(substeps=choose_substeps(base, data))
+    fd = restart_view(data)
+    nom = F.calibrate(Spec(base), fd, max_nfev=40)
+    spec = nom.spec.with_candidate(CANDIDATES["sensor_offset_gain"])
+    x0 = extend(nom.x, spec)
+    k = len(nom.x)                                   # the candidate's main parameter: offset_deg
+    local = F.fit(spec, fd, x0, max_nfev=SCREEN_NFEV)
+    scanned = F.fit(spec, fd, x0, max_nfev=SCREEN_NFEV, scan=k)
+    off_local = local.values["sensor_offset_gain.offset_deg"]
+    off_scan = scanned.values["sensor_offset_gain.offset_deg"]
+    assert abs(off_scan - 0.5) < 0.15, off_scan
+    assert scanned.rss < 0.5 * local.rss, (scanned.rss, local.rss, off_local)
+    assert scanned.rss < 0.5 * nom.rss
+    assert math.isfinite(scanned.rss) and scanned.nfev <= local.nfev + 2 * F.SCAN_POINTS + SCREEN_NFEV
