@@ -3,7 +3,6 @@ import importlib.util
 import math
 import pathlib
 
-import numpy as np
 import pytest
 
 from etb_gym.diagnose import fit as F
