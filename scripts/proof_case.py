@@ -18,11 +18,13 @@ def main(argv=None):
     ap.add_argument("case", help="proof family, optionally with a truth shape: NAME or NAME@K (K = 0, 1, 2)")
     ap.add_argument("seed", type=int, help="the proof's seed for this case")
     ap.add_argument("--duration", type=float, default=6.0, help="recording length [s] (default 6)")
+    ap.add_argument("--nameplate", choices=("3B", "random"), default="3B",
+                    help="the truth's nameplate: the default 3B, or a random one diagnosed from a plant file 10-20 %% off")
     ap.add_argument("--out", default="out", help="parent folder of the case's output folder (default out)")
     a = ap.parse_args(argv)
     if a.duration <= 0:
         ap.error(f"--duration = {a.duration} is invalid: expected a positive length in seconds")
-    opts = proof._parser().parse_args(["--duration", str(a.duration), "--jobs", "1"])
+    opts = proof._parser().parse_args(["--duration", str(a.duration), "--jobs", "1", "--nameplate", a.nameplate])
     work = Path(a.out) / ("dev_" + a.case.replace("@", "_s") + f"_{a.seed}")
     work.mkdir(parents=True, exist_ok=True)
     row, _ = proof.run_case(a.case, a.seed, opts, str(work))

@@ -31,6 +31,9 @@ from etb_gym.diagnose.proof_truth import FAMILIES, sensor_model, truth_for, trut
 
 def truth_case(family: str, seed: int, nameplate: str = "3B"):
     """(truth plant, its sensor kwargs, the rng after the truth was drawn): as run_case draws them."""
+    if family not in FAMILIES:
+        raise SystemExit(f"--cases: family {family!r} is not one of the proof's families ({', '.join(FAMILIES)}); "
+                         "truth shapes (NAME@K) run with scripts/proof_case.py")
     rng = np.random.default_rng(10_000 * (FAMILIES.index(family) + 1) + seed)
     scale = rng.uniform(0.0, 1.0)
     effects, sensor_kw, _, _ = truth_for(family, rng, scale)
