@@ -57,6 +57,7 @@ import math
 from .base import BaseController, VelocityEstimator, check_gain, register_controller
 from .model import resolve_model
 from .predictive import StopPredictor
+from .selftest import BreakawaySelfTest
 
 
 def _clip(x: float, lo: float, hi: float) -> float:
@@ -404,7 +405,8 @@ class PTOSController(CascadeController):
                  innovation_noise_deg: float = 0.02, innovation_taper_rad_s: float = 4.0,
                  innovation_settle_s: float = 0.02, innovation_zone_deg: float = 1.0, rest_band_deg: float = 0.05,
                  rest_check_speed_rad_s: float = 2.0, innovation_springs: bool = True,
-                 innovation_spring_share: float = 0.3, **kw):
+                 innovation_spring_share: float = 0.3, self_test: bool = True,
+                 self_test_ramp_A_per_s: float = 100.0, **kw):
         own = type(self).__name__
         kw.setdefault("friction_compensation", 1.0)      # full nominal friction level, linear within 0.12 deg
         kw.setdefault("friction_zone_deg", 0.12)
@@ -434,6 +436,10 @@ class PTOSController(CascadeController):
         if self.predictor is not None:
             self.predictor.rest_band_rad = math.radians(check_gain(own, "rest_band_deg", rest_band_deg, non_negative=True))
             self.predictor.rest_speed = check_gain(own, "rest_check_speed_rad_s", rest_check_speed_rad_s, positive=True)
+        if not isinstance(self_test, bool):
+            raise ValueError(f"{own}: self_test = {self_test!r} is invalid: expected True or False")
+        self.selftest = BreakawaySelfTest(self.model, self.dt, ramp_A_per_s=self_test_ramp_A_per_s) \
+            if self_test and self.predictor is not None and self.model.plant.friction is not None else None
 
     def reset_outer(self) -> None:
         self.I = 0.0
@@ -444,6 +450,8 @@ class PTOSController(CascadeController):
         self.r_prev = None
         if getattr(self, "predictor", None) is not None:
             self.predictor.reset()
+        if getattr(self, "selftest", None) is not None:
+            self.selftest.reset()
 
     def compute(self, y: float, r_target: float, meas) -> float:
         duty = super().compute(y, r_target, meas)
@@ -456,6 +464,17 @@ class PTOSController(CascadeController):
         v_pred = p.speed                            # the speed the innovation's period started from
         p.observe(y, meas.current_A, meas.last_duty, self.V_now)
         self.observed_periods += 1
+        d_test = None
+        if self.selftest is not None and self.selftest.phase != self.selftest.DONE:
+            d_test = self.selftest.update(y, r_target, meas.current_A, meas.last_duty, self.V_now, st.resistance_ohm,
+                                          self.Kc, p.speed, self.innovation_ms, self.landing)
+            if self.selftest.result is not None:        # identified: the levels the next move lands with
+                st.friction_level, st.spring_level = self.selftest.result
+                self.I = 0.0
+            if d_test is not None:
+                self.I = 0.0
+                self.r_prev = r_target
+                return d_test
         if self.innovation_gain > 0 and self.observed_periods * self.dt > self.innovation_settle \
                 and abs(e) < self.innovation_zone:
             eps = p.innovation

@@ -218,3 +218,59 @@ def test_ptos_pedal_with_weaker_springs_tracks():
     tr, _ = simulate(Job("ETB-3B-v0", "ptos", "pedal", "springs_-20", 0))
     mm = metrics(tr, SCENARIOS["pedal"])
     assert mm["rms_error_deg"] < 0.8, mm
+
+
+def _hold(ctrl, angle_deg, variant, n=300, seed=0):
+    """A constant reference for n periods on a plant variant (the benchmark's hold); returns the true angles."""
+    from etb_gym.bench_scenarios import VARIANTS
+
+    env = gym.make("ETB-3B-v0", observe_current=True, observe_supply=True, episode_s=n * 1e-3,
+                   reference={"name": "constant", "value_deg": angle_deg}, **VARIANTS[variant].env_kwargs("ETB-3B-v0"))
+    obs, info = env.reset(seed=seed, options={"angle_deg": angle_deg})
+    ctrl.reset(seed)
+    out, cost = [], []
+    for _ in range(n):
+        t0 = time.thread_time()
+        d = ctrl.act(obs)
+        cost.append(time.thread_time() - t0)
+        obs, _, _, _, info = env.step(np.array([d], np.float32))
+        out.append(info["angle_deg"])
+    return np.array(out), np.array(cost)
+
+
+@pytest.mark.parametrize("variant,angle,friction,spring", [("friction_+50", 40.0, 1.5, 1.0),
+                                                           ("springs_-20", 40.0, 1.0, 0.8),
+                                                           ("friction_-50", 3.0, 0.5, 1.0)])
+def test_ptos_selftest_identifies_the_levels_during_the_hold(variant, angle, friction, spring):
+    """The break-away self-test (controllers/selftest.py) during a 0.3 s hold: at 40 deg it separates the
+    friction and spring levels (within 12 %); at limp-home (symmetric preloads) it finds the load opposing a
+    move out of limp-home, theta_f T_s + theta_s T_SP0, within 12 %; the plate is back within 0.1 deg of the
+    reference when the hold ends; the estimates lie in the self-tuning's boxes."""
+    ctrl = make_controller("ptos")
+    ang, cost = _hold(ctrl, angle, variant)
+    st, m = ctrl.selftest, ctrl.model
+    assert st.result is not None and not st.aborted, f"{variant}: self-test phase {st.phase}, no estimate"
+    f, s = ctrl.tuning.friction_level, ctrl.tuning.spring_level
+    lo, hi = SelfTuning.FRICTION_BOUNDS
+    assert lo <= f <= hi and SelfTuning.SPRING_BOUNDS[0] <= s <= SelfTuning.SPRING_BOUNDS[1]
+    if angle > 10:
+        assert abs(f / friction - 1) < 0.12 and abs(s / spring - 1) < 0.12, (f, s)
+    else:
+        load, true = f * m.static_Nm + s * m.preload_Nm, friction * m.static_Nm + spring * m.preload_Nm
+        assert abs(load / true - 1) < 0.12, (f, s)
+    assert abs(ang[-1] - angle) < 0.1, f"{variant}: the plate ended the hold at {ang[-1]:.3f} deg"
+    assert np.percentile(cost, 99) < 1e-3, f"99th percentile act() {np.percentile(cost, 99) * 1e6:.0f} us"
+
+
+def test_ptos_selftest_never_runs_after_the_reference_moved():
+    """The key-on test runs only before the first move: a step before the test could start switches it off,
+    and the levels stay the nominal ones until the plate moves."""
+    ctrl = make_controller("ptos")
+    run(ctrl, 10.0, 12.0, n=200, at=20)
+    assert ctrl.selftest.phase == ctrl.selftest.DONE and ctrl.selftest.result is None
+
+
+def test_ptos_self_test_option_is_checked():
+    with pytest.raises(ValueError, match="self_test = 'yes' is invalid"):
+        make_controller("ptos", self_test="yes")
+    assert make_controller("ptos", self_test=False).selftest is None
