@@ -406,7 +406,7 @@ class PTOSController(CascadeController):
                  innovation_settle_s: float = 0.02, innovation_zone_deg: float = 1.0, rest_band_deg: float = 0.05,
                  rest_check_speed_rad_s: float = 2.0, innovation_springs: bool = True,
                  innovation_spring_share: float = 0.3, self_test: bool = True,
-                 self_test_ramp_A_per_s: float = 100.0, **kw):
+                 self_test_ramp_A_per_s: float = 100.0, hold_band: float = 0.7, **kw):
         own = type(self).__name__
         kw.setdefault("friction_compensation", 1.0)      # full nominal friction level, linear within 0.12 deg
         kw.setdefault("friction_zone_deg", 0.12)
@@ -436,6 +436,7 @@ class PTOSController(CascadeController):
         if self.predictor is not None:
             self.predictor.rest_band_rad = math.radians(check_gain(own, "rest_band_deg", rest_band_deg, non_negative=True))
             self.predictor.rest_speed = check_gain(own, "rest_check_speed_rad_s", rest_check_speed_rad_s, positive=True)
+        self.hold_band = check_gain(own, "hold_band", hold_band, non_negative=True, upper=1.0001)
         if not isinstance(self_test, bool):
             raise ValueError(f"{own}: self_test = {self_test!r} is invalid: expected True or False")
         self.selftest = BreakawaySelfTest(self.model, self.dt, ramp_A_per_s=self_test_ramp_A_per_s) \
@@ -497,7 +498,22 @@ class PTOSController(CascadeController):
             i_hold = st.spring_level * m.spring_torque_Nm(r_target) / m.torque_constant_Nm_per_A
             self.landing = True
             self.I = 0.0
-            return p.duty_to_land(r_target - s * self.aim_short, s, self.V_now, i_hold, st.resistance_ohm * i_hold)
+            d = p.duty_to_land(r_target - s * self.aim_short, s, self.V_now, i_hold, st.resistance_ohm * i_hold)
+            if self.hold_band < 1.0 and s * d < 0 and abs(e) < self.engage:
+                # friction-aware landing: the plate stops and stays only if the coil still holds it against
+                # the springs, |k i - T_spring| < theta_f T_s; a full reverse that would empty the coil below
+                # that band (the plate ran ahead of the prediction: less friction or a weaker spring than
+                # modelled) lets it stop on the target and slide back. Brake no further than hold_band of the
+                # band's half-width below the holding current (the current at the end of this period under d)
+                k, L = m.torque_constant_Nm_per_A, m.inductance_H
+                R = st.resistance_ohm
+                i_next = meas.current_A + (d * self.V_now - R * meas.current_A - k * p.speed) * self.dt / L
+                edge = self.hold_band * st.friction_level * m.static_Nm / k
+                if s * (i_next - i_hold) < -edge:
+                    i_goal = i_hold - s * edge
+                    d_edge = (R * meas.current_A + k * p.speed + L * (i_goal - meas.current_A) / self.dt) / self.V_now
+                    d = max(-1.0, min(1.0, d_edge)) if s * d_edge > s * d else d
+            return d
         if self.landing:                            # the predicted move has ended: the capture law finishes
             self.landed_at = r_target
         self.landing = False

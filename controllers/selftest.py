@@ -234,8 +234,8 @@ class BreakawaySelfTest:
             self.phase = self.DONE
             self.aborted = True                 # no break-away seen in a direction: nothing identified
             return
-        # the best candidate of the grid, then a local refinement on the logged data: a 3 x 3 pattern around
-        # the best point at a third of the grid's spacing, twice (the cost is steeply asymmetric about its
+        # the best candidate of the grid, then a local refinement on the logged data: a pattern search with a
+        # 3 x 3 pattern around the best point, from a third of the grid's spacing down to a ninth (the cost is steeply asymmetric about its
         # minimum -- a level too low lets the model's plate slide far -- so a parabola through the grid points
         # is biased towards the higher level: +6 % on both levels of the nominal plant, enough for 25-40 %
         # overshoot of a 0.5 deg step at limp-home)
@@ -244,7 +244,8 @@ class BreakawaySelfTest:
         self.best = (self.f_grid[a], self.s_grid[b])
         self.best_J = float(self.J.min())
         self.h = (_spacing(self.f_grid, a) / 3.0, _spacing(self.s_grid, b) / 3.0)
-        self.rounds = 2
+        self.rounds = 6
+        self.h_min = self.h[0] / 4.0
         self._job = None
         self._queue_pattern()
         self.phase = self.REFINE
@@ -269,12 +270,16 @@ class BreakawaySelfTest:
         if job["J"] < self.best_J:
             self.best_J, self.best_new = job["J"], (job["f"], job["s"])
         if not self.queue:
-            self.best = getattr(self, "best_new", self.best)
+            # a pattern search: the pattern moves to a better neighbour at the same spacing, and shrinks to a
+            # third when its centre is the best (at most ``rounds`` patterns)
+            new = getattr(self, "best_new", self.best)
+            moved, self.best = new != self.best, new
             self.rounds -= 1
-            if self.rounds <= 0:
+            if self.rounds <= 0 or (not moved and self.h[0] < self.h_min):
                 self._refine_done()
                 return
-            self.h = (self.h[0] / 3.0, self.h[1] / 3.0)
+            if not moved:
+                self.h = (self.h[0] / 3.0, self.h[1] / 3.0)
             self._queue_pattern()
 
     def _refine_done(self) -> None:
