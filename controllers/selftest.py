@@ -125,7 +125,8 @@ class BreakawaySelfTest:
     def _start(self, y0: float, i0: float) -> None:
         self.i0 = i0
         self.log = []                          # the test's data, replayed by the refinement
-        self.X = [self.plant.initial_state(y0).astype(float) for _ in self.cands]
+        x0 = np.asarray(self.plant.initial_state(y0), float)
+        self.X = [x0.copy() for _ in self.cands]
         self.J = np.zeros(len(self.cands))
         self.sign = 1.0
         self._begin_ramp(y0, i0)
@@ -137,10 +138,11 @@ class BreakawaySelfTest:
         that current at its own levels (so the first ramp's slide does not carry over as an offset)."""
         m = self.m
         k = float(np.asarray(self.plant.drive.torque_constant(y0)))
+        t_spring = m.spring_torque_Nm(y0)           # the spring level scales preload and rate alike
         for (f, s), x in zip(self.cands, self.X):
             x[0], x[1], x[2] = y0, 0.0, i_m
             if self._z >= 0 and self._sigma0 > 0:
-                net = k * i_m - s * m.spring_torque_Nm(y0)
+                net = k * i_m - s * t_spring
                 lim = f * m.static_Nm
                 x[self._z] = max(-lim, min(lim, net)) / self._sigma0
         self.phase = self.RAMP
