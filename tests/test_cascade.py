@@ -274,3 +274,33 @@ def test_ptos_self_test_option_is_checked():
     with pytest.raises(ValueError, match="self_test = 'yes' is invalid"):
         make_controller("ptos", self_test="yes")
     assert make_controller("ptos", self_test=False).selftest is None
+
+
+def test_ptos_selftest_aborted_by_a_moving_reference_leaves_the_levels():
+    """A step while the self-test drives the coil aborts it: no estimate, the nominal levels stay, and the
+    controller takes the step at once (it settles)."""
+    ctrl = make_controller("ptos")
+    started = []
+    act = ctrl.act
+
+    def traced(obs):
+        d = act(obs)
+        started.append(ctrl.selftest.running)
+        return d
+
+    ctrl.act = traced
+    ang = run(ctrl, 40.0, 41.0, n=300, at=65)     # the test ramps from ~50 ms (its parameter vectors built)
+    st = ctrl.selftest
+    assert started[64] and st.phase == st.DONE and st.aborted and st.result is None
+    assert ctrl.tuning.friction_level == pytest.approx(1.0, abs=0.05) and abs(ang[-1] - 41.0) < 0.1
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_ptos_friction_aware_landing_does_not_let_the_plate_slide_back(seed):
+    """40 -> 40.5 deg at friction -50 %: the plate meets less friction than modelled on its first move; a full
+    reverse that empties the coil below the holding band lets it stop on the target and slide back out of the
+    band (9-11 ms before the landing was friction-aware). With it the step settles within 2x its 3 ms bound."""
+    from etb_gym.benchmark import Job, run_job
+
+    row, _ = run_job(Job("ETB-3B-v0", "ptos", "small_step_40", "friction_-50", seed))
+    assert row["settling_time_s"] <= 0.006 + 1e-9, row["settling_time_s"]
