@@ -26,12 +26,13 @@ of a grid is the controller's compiled plant model (the simulator's equations, `
 levels, started at the sensed rest angle with its bristles at the static balance of the holding current,
 stepped every period with the duty applied and its current reset to the measured one (as the predictor's
 observer does), without angle correction. Its cost is the sum of squared angle errors over the test; the
-estimate is the best candidate, refined by a parabola through its neighbours on each axis, projected onto
+estimate is the best candidate, refined by a pattern search on the logged test (the four neighbours on
+the two axes replayed on the same data, from a third of the grid's spacing down to a 27th), projected onto
 the self-tuning boxes. The presliding, the limp-home spring's compliance and the Stribeck drop are all in the
 model, so the break-away need not be detected exactly: the ramps only have to pass it.
 
 Cost: one compiled control step per candidate per period of the test (~7 us each: 50 candidates ~0.35 ms);
-the refinement replays at most 50 logged periods per control period;
+the refinement replays at most 25 logged periods per control period;
 the candidates' parameter vectors are built one per period while the controller waits for the plate to
 settle (``update`` returns None then: the controller's own law acts).
 """
@@ -112,10 +113,7 @@ class BreakawaySelfTest:
         starts with the coil resistance the self-tuning has found (it moves while the plate first settles)."""
         n = len(self.cands)
         k = self._next % n
-        f, s = self.cands[k]
-        temp = RESISTANCE_REFERENCE_C + (R / self.m.resistance_ohm - 1.0) / COPPER_ALPHA_PER_K
-        var = PlantVariant(coil_temperature_C=max(temp, -200.0), friction_scale=f, spring_scale=s)
-        P = self.plant.param_vector(var.overrides(self._nominal))
+        P = self._params(*self.cands[k], R)
         if len(self._P) < n:
             self._P.append(P)
         else:
@@ -132,10 +130,10 @@ class BreakawaySelfTest:
         self._begin_ramp(y0, i0)
 
     def _begin_ramp(self, y0: float, i_m: float) -> None:
-        self.log.append(("start", y0, i_m))
         """Each ramp is its own experiment: every candidate starts it at the sensed rest angle ``y0`` (a mean
         over the last periods), at rest, with the measured current and its bristles at the static balance of
         that current at its own levels (so the first ramp's slide does not carry over as an offset)."""
+        self.log.append(("start", y0, i_m))
         m = self.m
         k = float(np.asarray(self.plant.drive.torque_constant(y0)))
         t_spring = m.spring_torque_Nm(y0)           # the spring level scales preload and rate alike
@@ -236,9 +234,9 @@ class BreakawaySelfTest:
             self.phase = self.DONE
             self.aborted = True                 # no break-away seen in a direction: nothing identified
             return
-        # the best candidate of the grid, then a local refinement on the logged data: a pattern search with a
-        # 3 x 3 pattern around the best point, from a third of the grid's spacing down to a ninth (the cost is steeply asymmetric about its
-        # minimum -- a level too low lets the model's plate slide far -- so a parabola through the grid points
+        # the best candidate of the grid, then a local refinement on the logged data: a pattern search over
+        # the four axis neighbours of the best point, from a third of the grid's spacing down (the cost is
+        # steeply asymmetric about its minimum -- a level too low lets the model's plate slide far -- so a parabola through the grid points
         # is biased towards the higher level: +6 % on both levels of the nominal plant, enough for 25-40 %
         # overshoot of a 0.5 deg step at limp-home)
         nf, ns = len(self.f_grid), len(self.s_grid)
@@ -246,7 +244,7 @@ class BreakawaySelfTest:
         self.best = (self.f_grid[a], self.s_grid[b])
         self.best_J = float(self.J.min())
         self.h = (_spacing(self.f_grid, a) / 3.0, _spacing(self.s_grid, b) / 3.0)
-        self.rounds = 6
+        self.rounds = 8
         self.h_min = self.h[0] / 4.0
         self._job = None
         self._queue_pattern()
@@ -255,14 +253,14 @@ class BreakawaySelfTest:
     def _queue_pattern(self) -> None:
         f0, s0 = self.best
         hf, hs = self.h
-        self.queue = [(f0 + i * hf, s0 + j * hs) for i in (-1, 0, 1) for j in (-1, 0, 1) if i or j]
+        self.queue = [(f0 + i * hf, s0 + j * hs) for i, j in ((-1, 0), (1, 0), (0, -1), (0, 1))]
         self.queue = [(f, s) for f, s in self.queue if f > 0.05 and s > 0.05]
 
-    REPLAY_CHUNK = 50          # logged periods replayed per control period (~50 x 7 us)
+    REPLAY_CHUNK = 25          # logged periods replayed per control period (~25 x 7 us)
 
     def _refine_one(self, R: float) -> None:
         """Advance the replay of the logged test for the next candidate of the pattern by at most
-        ``REPLAY_CHUNK`` periods (a replay of a 150-period test spans three control periods)."""
+        ``REPLAY_CHUNK`` periods (a replay of a 150-period test spans six control periods)."""
         if getattr(self, "_job", None) is None:
             f, s = self.queue.pop()
             self._job = self.replay_start(f, s, R)
@@ -297,10 +295,14 @@ class BreakawaySelfTest:
         return job["J"]
 
     def replay_start(self, f: float, s: float, R: float) -> dict:
+        return {"f": f, "s": s, "P": self._params(f, s, R), "x": self.X[0].copy(), "J": 0.0, "k": 0}
+
+    def _params(self, f: float, s: float, R: float):
+        """The parameter vector of the controller's plant at friction level f, spring level s and coil
+        resistance R (the self-tuned one, as a copper temperature)."""
         temp = RESISTANCE_REFERENCE_C + (R / self.m.resistance_ohm - 1.0) / COPPER_ALPHA_PER_K
         var = PlantVariant(coil_temperature_C=max(temp, -200.0), friction_scale=f, spring_scale=s)
-        return {"f": f, "s": s, "P": self.plant.param_vector(var.overrides(self._nominal)), "x": self.X[0].copy(),
-                "J": 0.0, "k": 0}
+        return self.plant.param_vector(var.overrides(self._nominal))
 
     def replay_advance(self, job: dict, n: int) -> bool:
         """Replay up to ``n`` more logged periods of ``job``; True when the log is done."""
