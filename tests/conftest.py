@@ -1,8 +1,30 @@
 import os
+import time
 
 import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+def _pin_hypothesis_constants():
+    """Hypothesis (>= 6.131) mixes numeric literals of every *local* module in sys.modules into its draws
+    ("local constants"): our etb_gym modules and the generated steppers in the kernel cache. Which of them
+    are loaded when a property test starts depends on the tests an xdist worker happened to run before it, so
+    a ``derandomize=True`` test drew different examples in two CI runs of the same commit. An empty pool
+    makes the draws a function of the test's source and hypothesis' version only (what derandomize promises);
+    the strategies name their own edge values (exact 0, +-1, 1e-12). tests/test_property.py checks it."""
+    try:
+        from hypothesis.internal.conjecture import providers
+    except ImportError:     # pragma: no cover - hypothesis is a dev dependency
+        return
+    if hasattr(providers, "_get_local_constants"):
+        from hypothesis.internal.constants_ast import Constants
+
+        pool = Constants()
+        providers._get_local_constants = lambda: pool
+
+
+_pin_hypothesis_constants()
 
 
 @pytest.fixture(scope="session")
@@ -10,3 +32,49 @@ def rich_duty():
     from etb_gym.excitation import rich_excitation
 
     return rich_excitation()
+
+
+# ------------------------------------------------------------------------------ numba compile-time log
+# ETB_GYM_COMPILE_LOG=path: every numba compilation (a cache miss) appends a tab-separated line to
+# path.<xdist worker> -- test id, depth (0 = a compile the test's own call started, >0 = a callee compiled
+# inside it), seconds, module.function and signature. scripts/compile_log.py sums it per kernel and per test.
+_COMPILE_LOG = os.environ.get("ETB_GYM_COMPILE_LOG")
+_current_test = ["<collection>"]
+
+if _COMPILE_LOG:
+    from numba.core import event as _event
+
+    class _CompileLog(_event.Listener):
+        def __init__(self, path):
+            self.path, self.stack = path, []
+
+        def on_start(self, ev):
+            self.stack.append(time.perf_counter())
+
+        def on_end(self, ev):
+            dt = time.perf_counter() - self.stack.pop()
+            disp = ev.data["dispatcher"]
+            fn = getattr(disp, "py_func", None)
+            name = f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(disp))}"
+            sig = ",".join(str(a) for a in ev.data["args"])
+            with open(self.path, "a") as f:
+                f.write(f"{_current_test[0]}\t{len(self.stack)}\t{dt:.3f}\t{name}\t{sig}\n")
+
+    _LOG_PATH = f"{_COMPILE_LOG}.{os.environ.get('PYTEST_XDIST_WORKER', 'main')}"
+    _event.register("numba:compile", _CompileLog(_LOG_PATH))
+
+    def pytest_sessionfinish(session):
+        """The process's CPU seconds (with the subprocesses its tests waited for) beside the log: path.<worker>.cpu;
+        on a loaded machine the busiest worker's CPU time estimates the suite's wall time on an idle one."""
+        import resource
+
+        cpu = sum(r.ru_utime + r.ru_stime for r in map(resource.getrusage,
+                                                         (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)))
+        with open(_LOG_PATH + ".cpu", "w") as f:
+            f.write(f"{cpu:.1f}\n")
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        _current_test[0] = item.nodeid
+        yield
+        _current_test[0] = "<between tests>"
