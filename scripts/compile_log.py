@@ -3,7 +3,7 @@
     ETB_GYM_CACHE=/tmp/cold ETB_GYM_COMPILE_LOG=/tmp/cold/compile.log .venv/bin/python -m pytest -q -n 2
     .venv/bin/python scripts/compile_log.py /tmp/cold/compile.log.*
 
-Prints the compile seconds per test (top-level compiles only: a callee compiled inside its caller is part of the
+Prints the compile seconds (wall, or with --cpu the compiling thread's CPU) per test (top-level compiles only: a callee compiled inside its caller is part of the
 caller's time), per function and the number of distinct generated steppers (etb_gym_kernels modules) compiled.
 """
 from __future__ import annotations
@@ -17,6 +17,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("logs", nargs="+", help="the per-worker log files (path.gw0, path.gw1, ...)")
     ap.add_argument("--top", type=int, default=25, help="rows per table (default 25)")
+    ap.add_argument("--cpu", action="store_true", help="sum the compiling thread's CPU seconds, not wall seconds")
     a = ap.parse_args(argv)
     per_test, per_fn, per_fn_n, kernels = (collections.Counter(), collections.Counter(), collections.Counter(),
                                            collections.Counter())
@@ -29,8 +30,8 @@ def main(argv=None) -> int:
             print(f"cannot read the log {path}: {e.strerror}", file=sys.stderr)
             return 2
         for ln in lines:
-            test, depth, sec, name, _sig = ln.split("\t")
-            sec = float(sec)
+            test, depth, sec, name, *rest = ln.split("\t")
+            sec = float(rest[1]) if len(rest) > 1 and a.cpu else float(sec)
             if depth == "0":
                 total += sec
                 per_test[test] += sec

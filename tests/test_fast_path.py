@@ -22,6 +22,12 @@ ROOT = Path(__file__).resolve().parents[1]
 needs_numba = pytest.mark.skipif(not HAVE_NUMBA, reason="the fast path needs numba")
 
 
+def _effects():
+    """The effects of the "3B+effects" plants: state, carried and angle-dependent terms together. One list for
+    test_fast_equals_plain and the carry test, so the suite compiles that composition once (cold cache: ~1 min)."""
+    return [CoilHeating(), Backlash(play_rad=0.01), StribeckFriction(stiction_Nm=0.05), AngleDependentFriction()]
+
+
 def _plants():
     return {
         "1A": make_plant("1A"),
@@ -30,7 +36,7 @@ def _plants():
         "3C": make_plant("3C"),
         "3B-switching": make_plant("3B", pwm_mode="switching"),
         "2C-switching-9V": make_plant("2C", pwm_mode="switching", supply_V=9.0),
-        "3B+effects": make_plant("3B", effects=[CoilHeating(), Backlash(play_rad=0.01)]),
+        "3B+effects": make_plant("3B", effects=_effects()),
     }
 
 
@@ -144,10 +150,9 @@ class _LuGreRecomputing(LuGreFriction):
 
 
 def _carry_cases():
-    eff = [CoilHeating(), Backlash(play_rad=0.01), StribeckFriction(stiction_Nm=0.05), AngleDependentFriction()]
     return {"3B": make_plant("3B"), "3C": make_plant("3C"), "3A-switching": make_plant("3A", pwm_mode="switching"),
             "3B-switching-9V": make_plant("3B", pwm_mode="switching", supply_V=9.0),
-            "3B+effects": make_plant("3B", effects=eff)}
+            "3B+effects": make_plant("3B", effects=_effects())}
 
 
 @pytest.mark.parametrize("name", list(_carry_cases()))
