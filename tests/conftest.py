@@ -50,7 +50,9 @@ def rich_duty():
 # ETB_GYM_COMPILE_LOG=path: every numba compilation (a cache miss) appends a tab-separated line to
 # path.<xdist worker> -- test id, depth (0 = a compile the test's own call started, >0 = a callee compiled
 # inside it), wall seconds, module.function, signature and the compiling thread's CPU seconds (what a loaded
-# machine does not inflate). scripts/compile_log.py sums it per kernel and per test.
+# machine does not inflate). scripts/compile_log.py sums it per kernel and per test. Beside it: path.<worker>.need
+# (every generated-stepper function a test first asked for in that process, loaded or compiled, with the wall
+# seconds that took, lock waits included) and path.<worker>.cpu (the worker's CPU seconds).
 _COMPILE_LOG = os.environ.get("ETB_GYM_COMPILE_LOG")
 _current_test = ["<collection>"]
 
