@@ -5,14 +5,21 @@ The fast build is written as a module to ``~/.cache/etb_gym/kernels`` (``ETB_GYM
 digest of the source, the components' kernel modules, numba's version and integrate.STEPPER_REVISION, and
 compiled with ``cache=True``; kernels defined where numba cannot cache from (``__main__``, closures) are
 compiled in memory instead. ``borrow`` is the numba intrinsic that gives the stepper reference-count-free views.
+
+Processes that share the cache (pytest-xdist workers, the diagnosis' worker pool) compile each generated module's
+functions under a file lock (``etb_kernel_<digest>.lock``): the second process to need a function of that stepper
+waits for the first one's compilation and then loads it from the cache instead of compiling it again beside it.
 """
 from __future__ import annotations
 
 import hashlib
 import importlib.util
+import contextlib
 import inspect
 import os
 import sys
+import threading
+import time
 from pathlib import Path
 
 from .jit import HAVE_NUMBA, py_func
@@ -136,4 +143,67 @@ def load_cached_module(source: str, bound: dict, components, jit_options: dict, 
     mod = importlib.util.module_from_spec(spec)
     sys.modules[modname] = mod
     spec.loader.exec_module(mod)
+    lock = d / f"etb_kernel_{digest}.lock"
+    for name in jit_options:
+        compile_under_lock(getattr(mod, name), lock)
     return vars(mod)
+
+
+LOCK_WAIT_S = 1800.0   # then compile anyway: a process that holds the lock this long is stuck, not compiling
+_held: dict = {}       # lock path -> [thread lock, depth, fd]: re-entrant within a process (nested compiles)
+
+
+@contextlib.contextmanager
+def _file_lock(path: Path):
+    """An exclusive lock on ``path`` shared by processes (flock) and re-entrant for the thread holding it."""
+    entry = _held.setdefault(str(path), [threading.RLock(), 0, None])
+    with entry[0]:
+        if entry[1] == 0:
+            entry[2] = _acquire(path)
+        entry[1] += 1
+        try:
+            yield
+        finally:
+            entry[1] -= 1
+            if entry[1] == 0 and entry[2] is not None:
+                os.close(entry[2])          # closing the descriptor releases the flock
+                entry[2] = None
+
+
+def _acquire(path: Path):
+    """An open descriptor holding an exclusive flock on path, or None where flock is unavailable (Windows, a
+    file system without locks) or after LOCK_WAIT_S: the lock only saves duplicate work, never guards data."""
+    try:
+        import fcntl
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except (ImportError, OSError):
+        return None
+    deadline = time.monotonic() + LOCK_WAIT_S
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return fd
+        except BlockingIOError:
+            if time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        except OSError:
+            break
+    os.close(fd)
+    return None
+
+
+def compile_under_lock(dispatcher, lock: Path) -> None:
+    """Make ``dispatcher`` compile a new signature only while holding ``lock``. numba looks the signature up in
+    its on-disk cache first (inside Dispatcher.compile), so a process that waited loads what the holder saved."""
+    from numba.core import sigutils
+
+    compile_ = dispatcher.compile
+
+    def compile(sig):
+        if tuple(sigutils.normalize_signature(sig)[0]) in dispatcher.overloads:
+            return compile_(sig)            # compiled in this process already: no need to wait for the lock
+        with _file_lock(lock):
+            return compile_(sig)
+
+    dispatcher.compile = compile

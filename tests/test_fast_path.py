@@ -22,6 +22,12 @@ ROOT = Path(__file__).resolve().parents[1]
 needs_numba = pytest.mark.skipif(not HAVE_NUMBA, reason="the fast path needs numba")
 
 
+def _effects():
+    """The effects of the "3B+effects" plants: state, carried and angle-dependent terms together. One list for
+    test_fast_equals_plain and the carry test, so the suite compiles that composition once (cold cache: ~1 min)."""
+    return [CoilHeating(), Backlash(play_rad=0.01), StribeckFriction(stiction_Nm=0.05), AngleDependentFriction()]
+
+
 def _plants():
     return {
         "1A": make_plant("1A"),
@@ -30,7 +36,7 @@ def _plants():
         "3C": make_plant("3C"),
         "3B-switching": make_plant("3B", pwm_mode="switching"),
         "2C-switching-9V": make_plant("2C", pwm_mode="switching", supply_V=9.0),
-        "3B+effects": make_plant("3B", effects=[CoilHeating(), Backlash(play_rad=0.01)]),
+        "3B+effects": make_plant("3B", effects=_effects()),
     }
 
 
@@ -144,17 +150,22 @@ class _LuGreRecomputing(LuGreFriction):
 
 
 def _carry_cases():
-    eff = [CoilHeating(), Backlash(play_rad=0.01), StribeckFriction(stiction_Nm=0.05), AngleDependentFriction()]
     return {"3B": make_plant("3B"), "3C": make_plant("3C"), "3A-switching": make_plant("3A", pwm_mode="switching"),
             "3B-switching-9V": make_plant("3B", pwm_mode="switching", supply_V=9.0),
-            "3B+effects": make_plant("3B", effects=eff)}
+            "3B+effects": make_plant("3B", effects=_effects())}
 
 
 @pytest.mark.parametrize("name", list(_carry_cases()))
 def test_carried_stribeck_curve_gives_the_same_bits_as_recomputing_it(name, rich_duty):
     """LuGre's g(omega) is computed once per substep and carried to the next substep's kernel
     (integrate.py, "Carried values"): the trajectories equal, bit for bit, those of a LuGre that evaluates
-    g in its kernel and again in its advance, on the fast and the plain path, single and batch steps."""
+    g in its kernel and again in its advance, on the fast and the plain path, single and batch steps.
+
+    The batch steps run serially: batch_step_serial calls the same control_step_group (averaged PWM) and
+    control_step_dx (switching) per plant as the parallel batch_step runs on each thread, so the carried values
+    are checked on every generated path; that the parallel batch step equals single steps is
+    test_batch_step_equals_single_steps. (Checking parallel=None here too compiled a parallel batch step for
+    five compositions no other test steps in parallel: the four recomputing ones and 3B+effects.)"""
     p = _carry_cases()[name]
     q = p.replace(friction=_LuGreRecomputing(p.friction.params))
     assert "c1 = substep(" in p.engine.source and "c1" not in q.engine.source
@@ -172,13 +183,12 @@ def test_carried_stribeck_curve_gives_the_same_bits_as_recomputing_it(name, rich
             assert np.ptp(a.angle_deg) > 10.0 and np.ptp(a.state("friction.z_rad")) > 0.0
     X, P, V, D = _batch_inputs(p, 7)
     D[3, 0], D[4, 1] = 1e-12, 1.0 - 1e-12
-    for parallel in (None, False):
-        Xp, Xq, Ap, Aq = X.copy(), X.copy(), np.zeros((7, len(p.components))), np.zeros((7, len(p.components)))
-        for k in range(D.shape[0]):
-            assert p.step_batch(Xp, D[k], V, P, np.full(7, k * 1e-3), Ap, parallel=parallel).all()
-            q.step_batch(Xq, D[k], V, P, np.full(7, k * 1e-3), Aq, parallel=parallel)
-        np.testing.assert_array_equal(Xp, Xq)
-        np.testing.assert_array_equal(Ap, Aq)
+    Xp, Xq, Ap, Aq = X.copy(), X.copy(), np.zeros((7, len(p.components))), np.zeros((7, len(p.components)))
+    for k in range(D.shape[0]):
+        assert p.step_batch(Xp, D[k], V, P, np.full(7, k * 1e-3), Ap, parallel=False).all()
+        q.step_batch(Xq, D[k], V, P, np.full(7, k * 1e-3), Aq, parallel=False)
+    np.testing.assert_array_equal(Xp, Xq)
+    np.testing.assert_array_equal(Ap, Aq)
     ref_p, ref_q = p.reference(d[:5], angle_deg=20.0), q.reference(d[:5], angle_deg=20.0)   # rhs from the state
     np.testing.assert_array_equal(ref_p.states, ref_q.states)
 
