@@ -92,6 +92,8 @@ def run(case: str, args, work: Path) -> dict:
         row["shaped"] = r.get("shaped")
         row["outside"] = r.get("outside")
         row["stages_s"] = rep.get("elapsed_breakdown_s")
+        row["cpu_s"] = rep.get("cpu_s")                       # the diagnosis's CPU time (one core: --jobs 1)
+        row["substeps"], row["twin_substeps"] = rep.get("integrator_substeps"), rep.get("twin_substeps")
         if truth is not None:
             pd = truth.params_dict()
             row["calibrated_over_truth"] = {k: v["nominal_fit"] / pd[k]
