@@ -11,6 +11,10 @@ For each (family, seed, nameplate) case the proof's truth and recordings are reb
 
     nice -n 10 .venv/bin/python scripts/twin_harness.py --cases clean:0 clean:2 sensor_delay:0 --diagnose
     nice -n 10 .venv/bin/python scripts/twin_harness.py --cases clean:0 --nameplate random --diagnose --out rows.jsonl
+
+A case is ``FAMILY[@K]:SEED[:NAMEPLATE]``: a truth shape K of the family (0: the candidate's formula; with
+``--diagnose`` only) and a nameplate for this case (``3B`` or ``random``; default ``--nameplate``), e.g.
+``airflow_torque@1:0:random``.
 """
 from __future__ import annotations
 
@@ -55,13 +59,23 @@ def truth_residual(truth, sensor_kw, rec, substeps: int, residual: str = "replay
             "windows": len(windows(rec.t_s, r, rd.noise_deg, None))}
 
 
+def parse_case(case: str, default_nameplate: str) -> tuple[str, int, str]:
+    """``FAMILY[@K]:SEED[:NAMEPLATE]`` -> (family with shape, seed, nameplate)."""
+    parts = case.split(":")
+    if len(parts) not in (2, 3) or not parts[1].isdigit() or (len(parts) == 3 and parts[2] not in ("3B", "random")):
+        raise SystemExit(f"--cases: {case!r} is not FAMILY[@K]:SEED[:3B|random] (e.g. airflow_torque@1:0:random)")
+    return parts[0], int(parts[1]), parts[2] if len(parts) == 3 else default_nameplate
+
+
 def run(case: str, args, work: Path) -> dict:
-    fam, seed = case.split(":")
-    seed = int(seed)
-    ns = argparse.Namespace(jobs=args.jobs, max_effects=2, candidates=None, nameplate=args.nameplate,
+    fam, seed, nameplate = parse_case(case, args.nameplate)
+    ns = argparse.Namespace(jobs=args.jobs, max_effects=2, candidates=None, nameplate=nameplate,
                             duration=args.duration, truth_substeps=200)
-    row = {"case": case, "nameplate": args.nameplate}
-    truth, sensor_kw, _ = truth_case(fam, seed, args.nameplate)
+    row = {"case": case, "nameplate": nameplate}
+    shaped = "@" in fam
+    if shaped and args.truth:
+        raise SystemExit(f"--cases: {case!r}: --truth rebuilds only the families' shape 0 (no @K)")
+    truth, sensor_kw, _ = (None, None, None) if shaped else truth_case(fam, seed, nameplate)
     if args.diagnose:
         t0 = time.perf_counter()
         r, _ = PR.run_case(fam, seed, ns, str(work))
@@ -74,19 +88,26 @@ def run(case: str, args, work: Path) -> dict:
         row["floor_over_true"] = r["noise_floor"] / r["true_noise"]
         row["time_s"] = r["time_s"]
         row["wall_s"] = time.perf_counter() - t0
-        rep = json.loads((work / f"out_{fam}_{seed}" / "report.json").read_text())
-        pd = truth.params_dict()
-        row["calibrated_over_truth"] = {k: v["nominal_fit"] / pd[k] for k, v in rep["calibrated_parameters"].items()
-                                        if pd.get(k)}
+        rep = json.loads((work / f"out_{fam.replace('@', '_s')}_{seed}" / "report.json").read_text())
+        row["shaped"] = r.get("shaped")
+        row["outside"] = r.get("outside")
+        row["stages_s"] = rep.get("elapsed_breakdown_s")
+        row["cpu_s"] = rep.get("cpu_s")                       # the diagnosis's CPU time (one core: --jobs 1)
+        row["substeps"], row["twin_substeps"] = rep.get("integrator_substeps"), rep.get("twin_substeps")
+        if truth is not None:
+            pd = truth.params_dict()
+            row["calibrated_over_truth"] = {k: v["nominal_fit"] / pd[k]
+                                            for k, v in rep["calibrated_parameters"].items() if pd.get(k)}
     if args.truth:
-        rec, held = _recordings(fam, seed, truth, sensor_kw, truth_case(fam, seed, args.nameplate)[2], args, work)
+        rec, held = _recordings(fam, seed, truth, sensor_kw, truth_case(fam, seed, nameplate)[2], args, work,
+                                nameplate)
         for n in args.substeps:
             row[f"truth_train_{n}"] = truth_residual(truth, sensor_kw, rec, n)
             row[f"truth_held_{n}"] = truth_residual(truth, sensor_kw, held, n)
     return row
 
 
-def _recordings(fam, seed, truth, sensor_kw, rng, args, work):
+def _recordings(fam, seed, truth, sensor_kw, rng, args, work, nameplate):
     """The proof's recording and held-out recording (record_and_diagnose's draws, without the diagnosis)."""
     from etb_gym.diagnose.synthetic import make_recording, nameplate_file_plant
     from etb_gym.plantfile import load_plant, save_plant
@@ -96,7 +117,7 @@ def _recordings(fam, seed, truth, sensor_kw, rng, args, work):
     kw = dict(noise_deg=noise, colour=colour, **sensor_kw)
     rec_seed = int(rng.integers(1 << 30))
     ctrl = None
-    if args.nameplate == "random":
+    if nameplate == "random":
         pf = work / f"h_{fam}_{seed}_plant.toml"
         save_plant(nameplate_file_plant(truth, rng), pf)
         ctrl = PR._controller(load_plant(pf))
@@ -118,10 +139,17 @@ def main(argv=None) -> int:
     ap.add_argument("--truth", action="store_true", help="the truth's own residual on both recordings")
     ap.add_argument("--substeps", type=int, nargs="+", default=[20])
     ap.add_argument("--out", default=None, help="append one JSON line per case here")
+    ap.add_argument("--keep", default=None, metavar="DIR",
+                    help="work in DIR and keep its recordings and diagnosis outputs (default: a temporary folder)")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as w:
+        work = Path(args.keep) if args.keep else Path(w)
+        work.mkdir(parents=True, exist_ok=True)
         for case in args.cases:
-            row = run(case, args, Path(w))
+            try:
+                row = run(case, args, work)
+            except Exception as e:                       # one case's failure must not cost the others' rows
+                row = {"case": case, "error": f"{type(e).__name__}: {e}"}
             line = json.dumps(row, default=float)
             print(line, flush=True)
             if args.out:

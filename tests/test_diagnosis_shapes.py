@@ -1,6 +1,7 @@
 """Tables learned from the data (effects_maps, diagnose.shapes) and physics outside the catalogue
 (diagnose.unmodelled): components, plant files, the penalized fit, the periodicity analysis, and one
 end-to-end diagnosis of a detent torque that no candidate describes."""
+import dataclasses
 import json
 import math
 
@@ -152,3 +153,38 @@ def test_detent_torque_is_reported_outside_the_catalogue_with_its_period(tmp_pat
     assert {"calibrate", "select", "refine", "report"} <= set(st) and all(v >= 0 for v in st.values())
     assert sum(st.values()) <= rep["elapsed_s"] + 5.0
 
+
+
+def test_knots_the_recordings_did_not_visit_are_anchored_to_the_formula():
+    """A table is identified only where the recordings went. Knots with less than VISIT_MIN_S of hat-weighted
+    time near them are pulled to 0 (the formula alone) instead of continuing the last visited slope to the stop
+    (what the roughness penalty alone does)."""
+    from etb_gym.diagnose.model import prepare
+    from etb_gym.recordings import Recording
+    t = np.arange(3000) * 1e-3
+    ang = 20.0 + 10.0 * np.sin(2 * np.pi * 0.5 * t)                 # the plate stays within 10-30 deg
+    rec = Recording(name="part.csv", t_s=t, voltage_V=np.full(t.size, 2.0), angle_deg=ang, current_A=None,
+                    supply_V=None)
+    data = prepare([rec], 12.0)
+    base = make_plant("3B")
+    term = S.family_term("airflow_torque", base, data)
+    vis = S.visit_time_s(term, data)
+    g = np.degrees(term.grid)
+    assert vis.sum() == pytest.approx(3.0)
+    assert np.all(vis[(g > 12) & (g < 28)] > S.VISIT_MIN_S) and np.all(vis[(g < 4) | (g > 36)] == 0.0)
+    # the penalized solve on a linear toy problem: the data see the knots in 10-30 deg as a ramp
+    n = term.n_coef
+    seen = (g >= 10) & (g <= 30)
+    J = np.eye(n)[seen]
+    r = -np.interp(g, [10, 30], [1.0, 2.0])[seen]                  # residual r + J c = 0 at c = ramp
+    pb = S.Problem.make(Spec(base).with_candidate(term.candidate()), np.zeros(len(Spec(base).params) + n),
+                        (term.id,), [term], data)
+    free_tab = np.zeros((r.size, pb.free.size))
+    free_tab[:, :] = J
+    d = S._solve(free_tab, r, pb, [1e-3])
+    plain = dataclasses.replace(pb, groups=[(D, ridge, np.zeros_like(a)) for D, ridge, a in pb.groups])
+    d0 = S._solve(free_tab, r, plain, [1e-3])
+    far = g > 60
+    assert np.all(np.abs(d[far]) < 0.05), d
+    assert np.all(d0[far] > 2.5), d0                                # without the anchor: the ramp continued
+    assert np.allclose(d[seen], np.interp(g, [10, 30], [1.0, 2.0])[seen], atol=0.05)

@@ -88,3 +88,27 @@ def test_twin_of_a_named_effect_predicts_a_closed_loop_recording_at_the_noise():
     assert rms(res.plant.replace(substeps=80), res.sensor) < 1.3 * true_noise
     assert rms(res.plant, res.sensor) < 1.1 * rms(truth.replace(substeps=n), SensorModel())
     assert rms(*res.nominal_fit.spec.build(res.nominal_fit.x)) > 3.0 * true_noise
+
+
+def test_the_exported_twin_gets_an_integrator_step_fine_enough_for_a_closed_loop():
+    """The diagnosis chooses its step on the recordings it is given; a closed loop's voltage changes every sample
+    and needs a finer one. On this nameplate the open-loop recording picks 5 substeps, at which even the truth
+    replays a closed-loop recording at 1.6x the noise; the exported twin's step (twin_substeps: also probed on the
+    plant's own closed and open loop) brings it to the noise."""
+    from etb_gym.diagnose.proof import _controller
+    from etb_gym.diagnose.run import choose_substeps, twin_substeps
+    rng = np.random.default_rng(5)
+    truth = random_nameplate(rng, substeps=80)
+    plant_file = nameplate_file_plant(truth, rng)
+    rec = make_recording(truth, np.random.default_rng(6), duration_s=4.0, name="rig.csv", noise_deg=0.01)
+    held = make_recording(truth, np.random.default_rng(7), duration_s=4.0, closed=True, name="held.csv",
+                          noise_deg=0.01, controller=_controller(plant_file))
+    data = prepare([rec], 12.0)
+    n = choose_substeps(truth, data)
+    n_twin = twin_substeps(truth.replace(substeps=n), SensorModel(), data)
+    assert n_twin > n
+    hd = prepare([held], 12.0)
+    score = lambda k: math.sqrt(float(np.mean(angle_residuals_deg(
+        simulate(truth.replace(substeps=k), SensorModel(), hd), hd)[0] ** 2))) / hd.recs[0].noise_deg
+    assert score(n) > 1.3
+    assert score(n_twin) < 1.1

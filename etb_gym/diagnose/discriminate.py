@@ -64,9 +64,9 @@ def table_heldout(cur: F.FitResult, cid: str, data: Data) -> float:
     (shape free, roughness by cross-validation), nominal parameters refitted with it."""
     term = S.family_term(cid, cur.spec.base, data)
     spec_m = cur.spec.with_candidate(term.candidate())
-    pb = S.Problem.make(spec_m, np.concatenate([cur.x, np.zeros(term.n_coef)]), ("nominal", term.id), [term])
+    pb = S.Problem.make(spec_m, np.concatenate([cur.x, np.zeros(term.n_coef)]), ("nominal", term.id), [term], data)
     pf = S.fit_penalized(pb, data, iters=GN_ITER)
-    return S.heldout_error(dataclasses.replace(pb, x=pf.fit.x), data, pf.lams, pf.jac)
+    return S.heldout_error(dataclasses.replace(pf.problem, x=pf.fit.x), data, pf.lams, pf.jac)
 
 
 def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dict:

@@ -18,6 +18,17 @@ the other fold's angle residual simulated, summed over both folds (:func:`heldou
 
 A refined map is kept (in the twin and the exported plant file, where it sits beside the family's formula
 as a correction) only when its held-out error is lower than the formula's by MIN_GAIN.
+
+Where the recordings did not go the table is not identified, and the roughness penalty alone would extrapolate
+the last visited slope (a straight line in the correction, out to the stop). Such knots (less than VISIT_MIN_S of
+hat-weighted time near them, :func:`visit_time_s`) are *anchored*: pulled to 0 with ANCHOR times the weight of a
+roughness row, so the twin falls back to the family's formula (or, for the generic tables, to the calibrated
+nominal model) outside the visited range. The same holds for knots the recordings visited without seeing them:
+where the plate sits against a stop or in the spring's limp-home band a torque change does not move it, so a
+knot whose Jacobian column has less than ID_MIN of its table's median energy (first linearization of
+:func:`fit_penalized`) is anchored as well (measured: an airflow plateau's table, free at the 0 and 6 deg knots,
+put 5-9 mN m at limp-home and the closed stop, where a closed loop holds the plate: 0.9 deg off there). Speed and current tables get an extra knot beyond the range the
+recordings visited for the same reason (a table is held constant beyond its last knot).
 """
 from __future__ import annotations
 
@@ -39,7 +50,12 @@ FD_STEP = 0.5            # finite-difference step in normalized units (a knot va
 ANGLE_KNOTS = 16         # knots of a refined angle map over the stroke
 PROFILE_KNOTS = 17       # knots of a torque-constant or friction profile over the stroke (5.6 deg on 3B)
 JAC_SUBSTEPS = 20       # Jacobians at this integrator step (the residual at the model's own)
-RIDGE = 1e-4             # a small pull of the table towards zero (unvisited knots, collinearity with the spring)
+RIDGE = 1e-4             # a small pull of the table towards zero (collinearity with the spring)
+VISIT_MIN_S = 0.02       # a knot the recordings spent less time near (hat-weighted) is not identified by them ...
+ANCHOR = 1e3             # ... and is pulled to 0 (the formula alone) with this weight, relative to a roughness row
+ID_MIN = 0.01           # a knot whose Jacobian column carries less than this share of its table's median is not
+                         # identified either (the plate pinned at a stop or in the limp-home band): anchored too
+OUTER_SPEED = 3.0        # speed tables get a last knot at this multiple of the fastest speed visited (anchored)
 
 
 # ------------------------------------------------------------------------------------ map terms
@@ -140,14 +156,16 @@ def local_angle_grid(base, centre_rad: float, below_deg: float, above_deg: float
 
 
 def speed_grid(data: Data, n: int = 7) -> np.ndarray:
-    """0 and n-1 knots spaced logarithmically up to the fastest speed the recordings reach."""
+    """0 and n-1 knots spaced logarithmically up to the fastest speed the recordings reach, and one at
+    OUTER_SPEED times that (not visited: anchored, so the table returns to the formula beyond the data)."""
     w = np.abs(data_speeds_rad_s(data))
     top = max(float(np.quantile(w, 0.995)), 0.5)
-    return np.concatenate([[0.0], np.geomspace(top / 300.0, top, n - 1)])
+    return np.concatenate([[0.0], np.geomspace(top / 300.0, top, n - 1), [OUTER_SPEED * top]])
 
 
 def current_grid(data: Data, base, n: int = 9) -> np.ndarray:
-    """n signed knots over the currents the recordings reach (measured, else the supply over R)."""
+    """n signed knots over the currents the recordings reach (measured, else the supply over R); with a measured
+    current also knots at the stall current +-V/R where that lies beyond (anchored: not visited)."""
     cur = [rd.rec.current_A for rd in data.recs if rd.rec.current_A is not None]
     if cur:
         c = np.concatenate(cur)
@@ -160,7 +178,52 @@ def current_grid(data: Data, base, n: int = 9) -> np.ndarray:
     lo = min(lo, -0.05 * top)
     hi = max(hi, 0.05 * top)
     g = np.unique(np.concatenate([np.linspace(lo, 0.0, (n + 1) // 2), np.linspace(0.0, hi, (n + 1) // 2)]))
+    if cur:                       # beyond the measured range, up to the stall current (anchored knots)
+        R = float(getattr(base.drive.params, "resistance_ohm", 0.0) or 0.0)
+        v = max(float(np.max(np.abs(rd.rec.voltage_V))) for rd in data.recs)
+        stall = v / R if R > 0 else 0.0
+        ext = [x for x in (-stall, stall) if abs(x) > 1.2 * max(abs(lo), abs(hi))]
+        g = np.unique(np.concatenate([g, ext]))
     return g
+
+
+def _hat_time(x: np.ndarray, grid: np.ndarray, dt: float) -> np.ndarray:
+    """Per knot: the time [s] the samples ``x`` spent near it, each sample split between its two knots as the
+    table's interpolation weights it (samples beyond an end count for the end knot)."""
+    g = np.asarray(grid, float)
+    out = np.zeros(g.size)
+    if x.size == 0 or g.size < 2:
+        return out + x.size * dt
+    xc = np.clip(x, g[0], g[-1])
+    k = np.clip(np.searchsorted(g, xc, side="right") - 1, 0, g.size - 2)
+    f = (xc - g[k]) / (g[k + 1] - g[k])
+    np.add.at(out, k, (1.0 - f) * dt)
+    np.add.at(out, k + 1, f * dt)
+    return out
+
+
+def visit_time_s(term: "MapTerm", data: Data) -> np.ndarray | None:
+    """Per coefficient of ``term`` (value fields in order): the hat-weighted time the recordings spent near the
+    knot, in the table's own variable (angle, speed per direction, current). None: not known (no current
+    recorded for a current table; another grid)."""
+    dts = np.concatenate([np.full(rd.rec.n, rd.rec.dt_s) for rd in data.recs])
+    field = term.cls.grid_field
+    if field == "angle_rad":
+        t = _hat_time(data_angles_rad(data), term.grid, float(np.mean(dts)))
+        return np.tile(t, len(term.value_fields))
+    if field == "speed_rad_s":
+        w = data_speeds_rad_s(data)
+        out = []
+        for f in term.value_fields:
+            sel = w > 0 if "opening" in f else (w < 0 if "closing" in f else np.ones(w.size, bool))
+            out.append(_hat_time(np.abs(w[sel]), term.grid, float(np.mean(dts))))
+        return np.concatenate(out)
+    if field == "current_A":
+        cur = [rd.rec.current_A for rd in data.recs]
+        if any(c is None for c in cur):
+            return None
+        return np.tile(_hat_time(np.concatenate(cur), term.grid, float(np.mean(dts))), len(term.value_fields))
+    return None
 
 
 # which table refines which family's formula
@@ -214,11 +277,13 @@ class Problem:
     spec: Spec
     x: np.ndarray
     free: np.ndarray                      # indices into x
-    groups: list                          # per table: (D rows over the free parameters, ridge mask over them)
+    groups: list                          # per table: (D rows over the free parameters, ridge mask over them,
+                                          #             anchor mask: knots the data did not visit)
 
     @classmethod
-    def make(cls, spec: Spec, x, free_ids, terms=()) -> "Problem":
-        """Free parameters: those whose owner is in ``free_ids`` ("nominal" and candidate ids)."""
+    def make(cls, spec: Spec, x, free_ids, terms=(), data: Data | None = None) -> "Problem":
+        """Free parameters: those whose owner is in ``free_ids`` ("nominal" and candidate ids). With ``data``,
+        the knots the recordings did not visit (:func:`visit_time_s` < VISIT_MIN_S) are anchored to 0."""
         free = np.array([k for k, (o, _) in enumerate(spec.params) if o in free_ids], int)
         pos = {int(k): j for j, k in enumerate(free)}
         groups = []
@@ -227,16 +292,22 @@ class Problem:
             R = t.roughness()
             D = np.zeros((R.shape[0], free.size))
             ridge = np.zeros(free.size)
+            anchor = np.zeros(free.size)
+            vis = visit_time_s(t, data) if data is not None else None
             for j, k in enumerate(idx):
                 D[:, pos[k]] = R[:, j]
                 ridge[pos[k]] = 1.0
-            groups.append((D, ridge))
+                if vis is not None and vis[j] < VISIT_MIN_S:
+                    anchor[pos[k]] = 1.0
+            groups.append((D, ridge, anchor))
         return cls(spec, np.asarray(x, float), free, groups)
 
     def penalty(self, lams) -> np.ndarray:
-        """The penalty's matrix sum_g lambda_g (D_g^T D_g + RIDGE diag(table_g)) over the free parameters."""
+        """The penalty's matrix sum_g lambda_g (D_g^T D_g + RIDGE diag(table_g) + ANCHOR diag(unvisited_g)) over
+        the free parameters."""
         if getattr(self, "_unit_penalties", None) is None:       # each group's matrix at lambda = 1, once
-            self._unit_penalties = [D.T @ D + RIDGE * np.diag(ridge) for D, ridge in self.groups]
+            self._unit_penalties = [D.T @ D + RIDGE * np.diag(ridge) + ANCHOR * np.diag(anchor)
+                                    for D, ridge, anchor in self.groups]
         P = np.zeros((self.free.size, self.free.size))
         for lam, G in zip(lams, self._unit_penalties):
             P += lam * G
@@ -285,7 +356,7 @@ def _penalty_scales(J: np.ndarray, pb: Problem) -> list:
     """Per table: mean squared Jacobian column over mean squared roughness column, so that a relative
     weight of 1 balances the data and the roughness whatever the table's units."""
     out = []
-    for D, ridge in pb.groups:
+    for D, ridge, _ in pb.groups:
         m = ridge > 0
         jj = float(np.mean(np.sum(J[:, m] ** 2, axis=0))) if m.any() else 1.0
         dd = float(np.mean(np.sum(D[:, m] ** 2, axis=0))) if m.any() and D.size else 1.0
@@ -379,6 +450,22 @@ class PenalizedFit:
     cv_curve: list
 
 
+def anchor_unidentified(pb: Problem, J: np.ndarray, share: float = ID_MIN) -> Problem:
+    """``pb`` with every table knot whose Jacobian column (``J`` over pb.free) has less than ``share`` of its
+    table's median column energy anchored to 0 (in addition to the knots the recordings did not visit)."""
+    groups = []
+    for D, ridge, anchor in pb.groups:
+        cols = np.flatnonzero(ridge > 0)
+        new = anchor.copy()
+        if cols.size:
+            e = np.sum(J[:, cols] ** 2, axis=0)
+            med = float(np.median(e))
+            if med > 0.0:
+                new[cols[e < share * med]] = 1.0
+        groups.append((D, ridge, new))
+    return dataclasses.replace(pb, groups=groups)
+
+
 def _coarse(spec: Spec, substeps: int) -> Spec:
     """The same model at a coarser integrator step (for Jacobians only)."""
     if spec.base.substeps <= substeps:
@@ -402,6 +489,8 @@ def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int = GN_ITER, j
     for it in range(iters):
         coarse.x = pb.x
         J = jacobian(coarse, data, _residual(coarse.spec, data, pb.x))
+        if it == 0:
+            pb = anchor_unidentified(pb, J)
         rel, c = choose_lambdas(J, r, pb, data, grid)      # re-chosen at every linearization
         curve = curve or c
         lams = [a * b for a, b in zip(rel, _penalty_scales(J, pb))]
@@ -489,9 +578,9 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refine
     for term in terms:
         spec_m = final.spec.with_candidate(term.candidate())
         x0 = np.concatenate([final.x, np.zeros(term.n_coef)])
-        pb = Problem.make(spec_m, x0, ("nominal", term.id), [term])
+        pb = Problem.make(spec_m, x0, ("nominal", term.id), [term], data)
         pf = fit_penalized(pb, data, log=None)
-        pb_fit = dataclasses.replace(pb, x=pf.fit.x)
+        pb_fit = dataclasses.replace(pf.problem, x=pf.fit.x)
         h_map = heldout_error(pb_fit, data, pf.lams, pf.jac)
         kept = h_map < (1.0 - MIN_GAIN) * h_formula
         log(f"  shape of {cid}: table over {term.cls.grid_field} ({term.grid.size} knots, roughness weight "

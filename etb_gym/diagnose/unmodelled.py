@@ -89,9 +89,9 @@ def fit_generic(nominal: F.FitResult, data: Data, log=print, current_fine: bool 
     for t in terms:
         spec = spec.with_candidate(t.candidate())
     x0 = np.concatenate([x_nom, np.zeros(sum(t.n_coef for t in terms))])
-    pb = Problem.make(spec, x0, ("nominal",) + tuple(t.id for t in terms), terms)
+    pb = Problem.make(spec, x0, ("nominal",) + tuple(t.id for t in terms), terms, data)
     pf = fit_penalized(pb, data, iters=GN_ITER)
-    pbf = dataclasses.replace(pb, x=pf.fit.x)
+    pbf = dataclasses.replace(pf.problem, x=pf.fit.x)
     h = heldout_error(pbf, data, pf.lams, pf.jac)
     vals = spec.values(pf.fit.x)
     tables = {t.id: t.component(np.array([vals[f"{t.id}.c{k}"] for k in range(t.n_coef)])) for t in terms}
