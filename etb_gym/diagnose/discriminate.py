@@ -55,18 +55,57 @@ def rivals(screened: list, ref_rss: float, leader: str) -> list[str]:
     return out if len({table_kind(c) for c in out}) >= 2 else []
 
 
+SPRING_SIDE_DEG = 1.0     # the spring asymmetry acts below limp-home (its blend reaches this far above it)
+SPRING_SHARE = 0.5        # ... so it is named over the airflow when this share of the angle torque lies there
+
+
+def angle_torque_family(angle_rad, torque_Nm, weight, limp_home_rad: float) -> str:
+    """Airflow or spring asymmetry, both a torque of the angle alone, told apart by where the torque acts: the
+    spring's asymmetry on the closing side below limp-home only, the airflow over the opening. ``torque_Nm``
+    over ``angle_rad`` is a torque table learned with its shape free (the generic model's or the family's angle
+    table), ``weight`` how much data each knot had; the share of sum |T| w below limp-home + SPRING_SIDE_DEG
+    (or half a knot spacing, if wider) decides."""
+    a = np.asarray(angle_rad, float)
+    w = np.abs(np.asarray(torque_Nm, float)) * np.asarray(weight, float)
+    tot = float(w.sum())
+    if not tot > 0 or not np.isfinite(limp_home_rad):
+        return "airflow_torque"
+    step = float(np.median(np.diff(a))) if a.size > 1 else 0.0       # a coarse table smears a step by a knot
+    below = float(w[a < limp_home_rad + max(np.radians(SPRING_SIDE_DEG), 0.5 * step)].sum())
+    return "spring_asymmetry" if below >= SPRING_SHARE * tot else "airflow_torque"
+
+
 def table_kind(cid: str) -> str:
     return {"airflow_torque": "angle", "spring_asymmetry": "angle"}.get(cid, cid)
 
 
-def table_heldout(cur: F.FitResult, cid: str, data: Data) -> float:
+def table_heldout(cur: F.FitResult, cid: str, data: Data, tables: dict | None = None) -> float:
     """Held-out mean square angle residual (noise units) of the current model plus ``cid``'s family table
-    (shape free, roughness by cross-validation), nominal parameters refitted with it."""
+    (shape free, roughness by cross-validation), nominal parameters refitted with it. ``tables``: the fitted
+    table is stored there as ``tables[cid] = (grid, values)``."""
     term = S.family_term(cid, cur.spec.base, data)
     spec_m = cur.spec.with_candidate(term.candidate())
     pb = S.Problem.make(spec_m, np.concatenate([cur.x, np.zeros(term.n_coef)]), ("nominal", term.id), [term])
     pf = S.fit_penalized(pb, data, iters=GN_ITER)
+    if tables is not None:
+        vals = spec_m.values(pf.fit.x)
+        tables[cid] = (np.asarray(term.grid), np.array([vals[f"{term.id}.c{k}"] for k in range(term.n_coef)]))
     return S.heldout_error(dataclasses.replace(pb, x=pf.fit.x), data, pf.lams, pf.jac)
+
+
+ANGLE_ONLY = ("airflow_torque", "spring_asymmetry")
+
+
+def angle_pair(screened: list, ref_rss: float, leader: str) -> list[str]:
+    """[leader, other] when ``leader`` is airflow or spring asymmetry and the other (the same angle-only table)
+    is close in the screening (RSS drop at least MARGIN_SHARE of the leader's); else []."""
+    if leader not in ANGLE_ONLY:
+        return []
+    rss = {c: fr.rss for _, c, fr in screened}
+    other = ANGLE_ONLY[1 - ANGLE_ONLY.index(leader)]
+    if leader not in rss or other not in rss or ref_rss - rss[leader] <= 0:
+        return []
+    return [leader, other] if ref_rss - rss[other] >= MARGIN_SHARE * (ref_rss - rss[leader]) else []
 
 
 def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dict:
@@ -75,6 +114,7 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
     whose table cannot be simulated is left out of the comparison (its reason under "failed")."""
     scores, failed = {}, {}
     done: dict = {}
+    tables: dict = {}
     for c in ids:
         k = table_kind(c)
         if k in done:                       # airflow and spring share the angle table
@@ -82,7 +122,7 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
                 scores[c] = done[k]
             continue
         try:
-            done[k] = scores[c] = float(table_heldout(cur, c, data))
+            done[k] = scores[c] = float(table_heldout(cur, c, data, tables))
         except (ValueError, TypeError, FloatingPointError, ZeroDivisionError, OverflowError,
                 np.linalg.LinAlgError) as e:
             done[k] = None
@@ -92,12 +132,21 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
         winner = next(c for c in ids if scores.get(c) == best)   # ties (shared table): the formulas' order
     else:
         winner = ids[0]
+    side = None
+    if table_kind(winner) == "angle" and all(c in ids for c in ANGLE_ONLY):
+        # airflow or spring asymmetry (one table): where the learned angle torque acts decides
+        from .unmodelled import _visited
+        grid, tq = next(tables[c] for c in ANGLE_ONLY if c in tables)
+        side = winner = angle_torque_family(grid, tq, np.minimum(_visited(grid, data), 200.0), cur.spec.base.limp_home_rad)
     log("  angle-dependent torque rivals " + ", ".join(ids) + ": family tables held-out "
         + ", ".join(f"{c} {scores[c]:.3g}" if c in scores else f"{c} failed" for c in ids) + f" -> {winner}")
     ev = {"rivals": [c for c in ids if c != winner], "winner": winner,
           "heldout_table": scores, "signature": {c: SIGNATURE[c] for c in ids},
           "rule": "each family's torque table in angle (current-proportional, opposing the motion, or angle only) "
                   "fitted with its shape free; the lowest held-out angle error names the family"}
+    if side is not None:
+        ev["side"] = (f"{side}: the learned angle torque acts " + ("below limp-home (the spring's closing side)"
+                      if side == "spring_asymmetry" else "over the opening, not only below limp-home"))
     if failed:
         ev["failed"] = failed
     return ev
