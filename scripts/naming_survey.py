@@ -13,6 +13,7 @@ Rows go to --out (JSON lines, one per case, appended whole as each case finishes
     nice -n 10 python scripts/naming_survey.py --out out/survey_before.jsonl --jobs 1
     python scripts/naming_survey.py --summary out/survey_before.jsonl out/survey_after.jsonl
     python scripts/naming_survey.py --out out/survey_after.jsonl --redo-misses out/survey_before.jsonl
+    python scripts/naming_survey.py --out out/survey_after.jsonl --same-as out/survey_before.jsonl
 """
 from __future__ import annotations
 
@@ -173,6 +174,8 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=6.0, help="recording length [s] (default 6)")
     ap.add_argument("--jobs", type=int, default=1, help="cases run in parallel, one core each (default 1)")
     ap.add_argument("--redo-misses", metavar="ROWS", help="only the cases that missed their target (or crashed) in ROWS")
+    ap.add_argument("--same-as", metavar="ROWS", help="only the cases that ROWS holds (an after-run of a before-run), "
+                    "in ROWS's order")
     ap.add_argument("--limit", type=int, default=None, help="at most this many cases")
     ap.add_argument("--summary", nargs="+", metavar="ROWS", help="print the tables of these row files and exit")
     a = ap.parse_args(argv)
@@ -191,6 +194,9 @@ def main(argv=None) -> int:
     if a.redo_misses:
         prev = {key(r): r for r in read(Path(a.redo_misses))}
         cases = [c for c in cases if key(c) in prev and counted(prev[key(c)]) and not ok(prev[key(c)])]
+    if a.same_as:
+        order = {key(r): k for k, r in enumerate(read(Path(a.same_as)))}
+        cases = sorted((c for c in cases if key(c) in order), key=lambda c: order[key(c)])
     done = {key(r) for r in read(out)}
     todo = [c for c in cases if key(c) not in done][:a.limit]
     from tqdm import tqdm
