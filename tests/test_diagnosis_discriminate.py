@@ -119,3 +119,30 @@ def test_airflow_and_spring_asymmetry_are_told_apart_by_where_the_angle_torque_a
     # the same torque below limp-home, but the plate never went there: nothing to call the spring's
     assert D.angle_torque_family(a, below + 0.3 * opening, np.where(a < lh, 0.0, 50.0), lh) == "airflow_torque"
     assert D.angle_torque_family(a, np.zeros(a.size), w, lh) == "airflow_torque"
+
+
+def test_the_side_rule_needs_an_angle_table_that_won_and_moved(monkeypatch):
+    """Tables that all score the same have not moved (a closed-loop Stribeck case: 9.41 for all three): the
+    formulas' order stands; an angle table that won outright decides airflow vs spring by where it acts."""
+    grid = np.radians(np.linspace(0.0, 90.0, 17))
+    cur = type("Cur", (), {"spec": type("S", (), {"base": make_plant("3B")})()})()
+    lh = cur.spec.base.limp_home_rad
+    below = np.where(grid < lh, -0.02, 0.0)
+
+    def fake(scores, table):
+        def table_heldout(c, cid, data, tables=None):
+            if tables is not None and table_kind(cid) == "angle":
+                tables[cid] = (grid, table)
+            return scores[table_kind(cid)]
+        return table_heldout
+
+    from etb_gym.diagnose.discriminate import table_kind
+    monkeypatch.setattr("etb_gym.diagnose.unmodelled._visited", lambda g, data: np.full(g.size, 50.0))
+    ids = ["airflow_torque", "angle_dependent_friction", "spring_asymmetry"]
+    monkeypatch.setattr(D, "table_heldout", fake({"angle": 9.41, "angle_dependent_friction": 9.41}, below))
+    assert D.discriminate(cur, None, ids, log=lambda *a: None)["winner"] == "airflow_torque"   # a tie: order
+    monkeypatch.setattr(D, "table_heldout", fake({"angle": 2.0, "angle_dependent_friction": 9.41}, below))
+    ev = D.discriminate(cur, None, ids, log=lambda *a: None)
+    assert ev["winner"] == "spring_asymmetry" and "below limp-home" in ev["side"]
+    monkeypatch.setattr(D, "table_heldout", fake({"angle": 2.0, "angle_dependent_friction": 9.41}, 0 * below))
+    assert D.discriminate(cur, None, ids, log=lambda *a: None)["winner"] == "airflow_torque"  # the table did not move

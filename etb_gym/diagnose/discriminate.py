@@ -133,11 +133,16 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
     else:
         winner = ids[0]
     side = None
-    if table_kind(winner) == "angle" and all(c in ids for c in ANGLE_ONLY):
+    others = [v for c, v in scores.items() if table_kind(c) != "angle"]
+    if (winner in scores and table_kind(winner) == "angle" and all(c in ids for c in ANGLE_ONLY)
+            and all(v > (1.0 + 1e-6) * scores[winner] for v in others)):
         # airflow or spring asymmetry (one table): where the learned angle torque acts decides
         from .unmodelled import _visited
+        # (only when the angle table won outright: tables that all score the same have not moved)
         grid, tq = next(tables[c] for c in ANGLE_ONLY if c in tables)
-        side = winner = angle_torque_family(grid, tq, np.minimum(_visited(grid, data), 200.0), cur.spec.base.limp_home_rad)
+        if np.any(np.abs(tq) > 0):
+            side = winner = angle_torque_family(grid, tq, np.minimum(_visited(grid, data), 200.0),
+                                                cur.spec.base.limp_home_rad)
     log("  angle-dependent torque rivals " + ", ".join(ids) + ": family tables held-out "
         + ", ".join(f"{c} {scores[c]:.3g}" if c in scores else f"{c} failed" for c in ids) + f" -> {winner}")
     ev = {"rivals": [c for c in ids if c != winner], "winner": winner,
