@@ -146,3 +146,18 @@ def test_the_side_rule_needs_an_angle_table_that_won_and_moved(monkeypatch):
     assert ev["winner"] == "spring_asymmetry" and "below limp-home" in ev["side"]
     monkeypatch.setattr(D, "table_heldout", fake({"angle": 2.0, "angle_dependent_friction": 9.41}, 0 * below))
     assert D.discriminate(cur, None, ids, log=lambda *a: None)["winner"] == "airflow_torque"  # the table did not move
+
+
+def test_a_family_whose_own_angle_table_is_periodic_is_no_alternative(monkeypatch):
+    """A detent torque the generic table did not call periodic must not be named airflow by the rescue."""
+    from etb_gym.components import effects_maps as mx
+    from etb_gym.diagnose import unmodelled as U
+    grid = np.radians(np.linspace(0.0, 90.0, 33))
+    ref = type("Ref", (), {"kept": True, "term": type("T", (), {"cls": mx.AngleTorqueMap})(), "fit": _Alt(),
+                           "table": lambda self: {"angle_rad": list(grid),
+                                                  "torque_Nm": list(0.01 * np.sin(2 * np.pi * grid / np.radians(20.0)))}})()
+    monkeypatch.setattr(U, "_try_family", lambda cur, cid, data, log: U.FamilyAlternative(cid, _Alt(), ref, 1.0, 1.0))
+    monkeypatch.setattr(U, "_rms_deg", lambda spec, x, data: 1.0 if x is _Cur.x else 0.5)
+    alt = U.catalogue_alternative(_generic(1.0, ["unmodelled_angle"]), _Cur(), {"unmodelled_angle": ("airflow_torque",)},
+                                  None, lambda fr: False, log=lambda *a: None)
+    assert alt is None

@@ -338,9 +338,10 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
     their formula and their own table (shape learned from the data), and the best is returned when it does the
     generic model's job with one table instead of four: its held-out error within GAIN_OUT of the generic's
     (the generic tables may not win by their extra freedom alone), or its residual within the noise. A
-    periodic angle torque (no catalogue family is periodic in angle) or a family that does not lower the RMS by
-    RMS_GAIN is no alternative. Among families whose errors are within FAMILY_TIE, the better formula is taken
-    (airflow and spring asymmetry share a table; their formulas' supports differ)."""
+    periodic angle torque (no catalogue family is periodic in angle: neither the generic angle table nor the
+    family's own may be) or a family that does not lower the RMS by RMS_GAIN is no alternative. Among families
+    whose errors are within FAMILY_TIE, the better formula is taken, but airflow and spring asymmetry (one
+    table) are told apart by where the generic angle torque acts (discriminate.angle_torque_family)."""
     if periodic_term(generic.shape) is not None:
         return None
     dom = generic.shape.get("significant_terms", [])
@@ -364,6 +365,13 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
                                        cur.spec.base.limp_home_rad)]
     log("  families of the generic model's main table (" + dom[0] + "): "
         + ", ".join(f"{a.id} held-out {a.heldout:.3g}" for a in alts) + f"; generic {generic.heldout:.3g}")
+    ref = alt.refinement
+    if ref is not None and ref.kept and ref.term.cls is mx.AngleTorqueMap:
+        tab = ref.table()              # a family's own angle table that turns out periodic: a detent, not it
+        if periodicity(np.degrees(tab["angle_rad"]), np.asarray(tab["torque_Nm"]),
+                       periods_deg=resolvable(np.degrees(tab["angle_rad"])))["periodic"]:
+            log(f"  {alt.id}'s learned angle table is periodic: no catalogue alternative")
+            return None
     rms_cur = _rms_deg(cur.spec, cur.x, data)
     rms_alt = _rms_deg(alt.fit.spec, alt.fit.x, data)
     if not rms_alt <= (1.0 - RMS_GAIN) * rms_cur:
