@@ -133,7 +133,7 @@ def summary(files) -> str:
                           and loop in ("all", r["loop"])]
                     cells.append(rate(rs))
                 out.append(f"| {title} | {np_} | {loop} | " + " | ".join(cells) + " |")
-    out += ["", f"| case | rig | loop | " + " | ".join(f"{n}: size, named / effects, verdict" for n, _ in sets) + " |",
+    out += ["", "| case | rig | loop | " + " | ".join(f"{n}: size, named / effects, verdict" for n, _ in sets) + " |",
             "| --- | --- | --- |" + " --- |" * len(sets)]
     keys = sorted({key(r) for _, rows in sets for r in rows})
     for k in keys:

@@ -109,16 +109,17 @@ def test_a_catalogue_family_with_its_table_wins_over_generic_tables_of_its_kind(
 
 def test_airflow_and_spring_asymmetry_are_told_apart_by_where_the_angle_torque_acts():
     """Both are torques of the angle alone (one table); the spring's asymmetry acts below limp-home only."""
+    from etb_gym.diagnose import unmodelled as U
     a = np.radians(np.linspace(0.0, 90.0, 73))
     lh = math.radians(8.0)
     w = np.full(a.size, 50.0)
     below = np.where(a < lh, -0.02 * (lh - a) / lh, 0.0) + 1e-4 * np.sin(a)
     opening = -0.03 * np.sin(np.pi * a / np.radians(90.0)) * (1 - a / np.radians(60.0))
-    assert D.angle_torque_family(a, below, w, lh) == "spring_asymmetry"
-    assert D.angle_torque_family(a, opening, w, lh) == "airflow_torque"
+    assert U.angle_torque_family(a, below, w, lh) == "spring_asymmetry"
+    assert U.angle_torque_family(a, opening, w, lh) == "airflow_torque"
     # the same torque below limp-home, but the plate never went there: nothing to call the spring's
-    assert D.angle_torque_family(a, below + 0.3 * opening, np.where(a < lh, 0.0, 50.0), lh) == "airflow_torque"
-    assert D.angle_torque_family(a, np.zeros(a.size), w, lh) == "airflow_torque"
+    assert U.angle_torque_family(a, below + 0.3 * opening, np.where(a < lh, 0.0, 50.0), lh) == "airflow_torque"
+    assert U.angle_torque_family(a, np.zeros(a.size), w, lh) == "airflow_torque"
 
 
 def test_the_side_rule_needs_an_angle_table_that_won_and_moved(monkeypatch):

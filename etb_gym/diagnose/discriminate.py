@@ -55,26 +55,6 @@ def rivals(screened: list, ref_rss: float, leader: str) -> list[str]:
     return out if len({table_kind(c) for c in out}) >= 2 else []
 
 
-SPRING_SIDE_DEG = 1.0     # the spring asymmetry acts below limp-home (its blend reaches this far above it)
-SPRING_SHARE = 0.5        # ... so it is named over the airflow when this share of the angle torque lies there
-
-
-def angle_torque_family(angle_rad, torque_Nm, weight, limp_home_rad: float) -> str:
-    """Airflow or spring asymmetry, both a torque of the angle alone, told apart by where the torque acts: the
-    spring's asymmetry on the closing side below limp-home only, the airflow over the opening. ``torque_Nm``
-    over ``angle_rad`` is a torque table learned with its shape free (the generic model's or the family's angle
-    table), ``weight`` how much data each knot had; the share of sum |T| w below limp-home + SPRING_SIDE_DEG
-    (or half a knot spacing, if wider) decides."""
-    a = np.asarray(angle_rad, float)
-    w = np.abs(np.asarray(torque_Nm, float)) * np.asarray(weight, float)
-    tot = float(w.sum())
-    if not tot > 0 or not np.isfinite(limp_home_rad):
-        return "airflow_torque"
-    step = float(np.median(np.diff(a))) if a.size > 1 else 0.0       # a coarse table smears a step by a knot
-    below = float(w[a < limp_home_rad + max(np.radians(SPRING_SIDE_DEG), 0.5 * step)].sum())
-    return "spring_asymmetry" if below >= SPRING_SHARE * tot else "airflow_torque"
-
-
 def table_kind(cid: str) -> str:
     return {"airflow_torque": "angle", "spring_asymmetry": "angle"}.get(cid, cid)
 
@@ -137,7 +117,7 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
     if (winner in scores and table_kind(winner) == "angle" and all(c in ids for c in ANGLE_ONLY)
             and all(v > (1.0 + 1e-6) * scores[winner] for v in others)):
         # airflow or spring asymmetry (one table): where the learned angle torque acts decides
-        from .unmodelled import _visited
+        from .unmodelled import _visited, angle_torque_family
         # (only when the angle table won outright: tables that all score the same have not moved)
         grid, tq = next(tables[c] for c in ANGLE_ONLY if c in tables)
         if np.any(np.abs(tq) > 0):

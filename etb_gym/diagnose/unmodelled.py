@@ -287,6 +287,26 @@ def compare(generic: Generic, heldout_catalogue: float, rms_nominal_deg: float, 
     return bool(better or periodic)
 
 
+SPRING_SIDE_DEG = 1.0     # the spring asymmetry acts below limp-home (its blend reaches this far above it)
+SPRING_SHARE = 0.5        # ... so it is named over the airflow when this share of the angle torque lies there
+
+
+def angle_torque_family(angle_rad, torque_Nm, weight, limp_home_rad: float) -> str:
+    """Airflow or spring asymmetry, both a torque of the angle alone, told apart by where the torque acts: the
+    spring's asymmetry on the closing side below limp-home only, the airflow over the opening. ``torque_Nm``
+    over ``angle_rad`` is a torque table learned with its shape free (the generic model's or the family's angle
+    table), ``weight`` how much data each knot had; the share of sum |T| w below limp-home + SPRING_SIDE_DEG
+    (or half a knot spacing, if wider) decides."""
+    a = np.asarray(angle_rad, float)
+    w = np.abs(np.asarray(torque_Nm, float)) * np.asarray(weight, float)
+    tot = float(w.sum())
+    if not tot > 0 or not np.isfinite(limp_home_rad):
+        return "airflow_torque"
+    step = float(np.median(np.diff(a))) if a.size > 1 else 0.0       # a coarse table smears a step by a knot
+    below = float(w[a < limp_home_rad + max(np.radians(SPRING_SIDE_DEG), 0.5 * step)].sum())
+    return "spring_asymmetry" if below >= SPRING_SHARE * tot else "airflow_torque"
+
+
 FAMILY_NFEV = 40        # evaluations of a family's formula fit before its table (as explain.FULL_NFEV)
 FAMILY_TIE = 0.02       # families whose tables' held-out errors are this close: the better formula decides
 
@@ -341,7 +361,7 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
     periodic angle torque (no catalogue family is periodic in angle: neither the generic angle table nor the
     family's own may be) or a family that does not lower the RMS by RMS_GAIN is no alternative. Among families
     whose errors are within FAMILY_TIE, the better formula is taken, but airflow and spring asymmetry (one
-    table) are told apart by where the generic angle torque acts (discriminate.angle_torque_family)."""
+    table) are told apart by where the generic angle torque acts (:func:`angle_torque_family`)."""
     if periodic_term(generic.shape) is not None:
         return None
     dom = generic.shape.get("significant_terms", [])
@@ -357,8 +377,7 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
     alt = min(near, key=lambda a: a.heldout_formula)
     both = {a.id: a for a in near}
     if "airflow_torque" in both and "spring_asymmetry" in both and "unmodelled_angle" in generic.tables:
-        # one table for both: where the free angle torque acts decides (discriminate.angle_torque_family)
-        from .discriminate import angle_torque_family
+        # one table for both: where the free angle torque acts decides
         ta = generic.tables["unmodelled_angle"].params
         grid = np.asarray(ta.angle_rad)
         alt = both[angle_torque_family(grid, ta.torque_Nm, np.minimum(_visited(grid, data), 200.0),
