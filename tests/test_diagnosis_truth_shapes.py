@@ -115,3 +115,20 @@ def test_outside_score_needs_no_catalogue_effect_and_the_period():
     row = {"effects": []}
     score_outside(row, rep, 25.0)                       # period more than 10 % off
     assert not row["named"]
+
+
+@pytest.mark.parametrize("shape", [0, 1, 2])
+def test_inductance_truths_stay_physical_on_a_small_inductance_nameplate(shape):
+    """A 3B-sized inductance drop (up to 4.5 mH) on a 2 mH nameplate made the truth's inductance negative and
+    its recording diverge (survey case inductance_saturation@1, random nameplate, seed 0): the drop follows
+    the plant's inductance (and the knee its current); on 3B nothing changes."""
+    from etb_gym.diagnose.proof_truth import tie
+    effects = truth_for("inductance_saturation", np.random.default_rng(1), 1.0, shape)[0]
+    base = make_plant("3B")
+    assert tie(effects, base)[0].params == effects[0].params
+    small = base.with_params({"drive.inductance_H": 0.002, "drive.resistance_ohm": 2.5})
+    e = tie(effects, small)[0].params
+    assert math.isclose(e.inductance_drop_H, 0.1 * effects[0].params.inductance_drop_H)
+    assert e.inductance_drop_H < 0.3 * 0.002                 # below the drive's saturated inductance
+    knee = "saturation_current_A" if shape == 0 else "knee_current_A"
+    assert math.isclose(getattr(e, knee), 0.5 * getattr(effects[0].params, knee))

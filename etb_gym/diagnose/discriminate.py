@@ -59,14 +59,33 @@ def table_kind(cid: str) -> str:
     return {"airflow_torque": "angle", "spring_asymmetry": "angle"}.get(cid, cid)
 
 
-def table_heldout(cur: F.FitResult, cid: str, data: Data) -> float:
+def table_heldout(cur: F.FitResult, cid: str, data: Data, tables: dict | None = None) -> float:
     """Held-out mean square angle residual (noise units) of the current model plus ``cid``'s family table
-    (shape free, roughness by cross-validation), nominal parameters refitted with it."""
+    (shape free, roughness by cross-validation), nominal parameters refitted with it. ``tables``: the fitted
+    table is stored there as ``tables[cid] = (grid, values)``."""
     term = S.family_term(cid, cur.spec.base, data)
     spec_m = cur.spec.with_candidate(term.candidate())
     pb = S.Problem.make(spec_m, np.concatenate([cur.x, np.zeros(term.n_coef)]), ("nominal", term.id), [term], data)
     pf = S.fit_penalized(pb, data, iters=GN_ITER)
+    if tables is not None:
+        vals = spec_m.values(pf.fit.x)
+        tables[cid] = (np.asarray(term.grid), np.array([vals[f"{term.id}.c{k}"] for k in range(term.n_coef)]))
     return S.heldout_error(dataclasses.replace(pf.problem, x=pf.fit.x), data, pf.lams, pf.jac)
+
+
+ANGLE_ONLY = ("airflow_torque", "spring_asymmetry")
+
+
+def angle_pair(screened: list, ref_rss: float, leader: str) -> list[str]:
+    """[leader, other] when ``leader`` is airflow or spring asymmetry and the other (the same angle-only table)
+    is close in the screening (RSS drop at least MARGIN_SHARE of the leader's); else []."""
+    if leader not in ANGLE_ONLY:
+        return []
+    rss = {c: fr.rss for _, c, fr in screened}
+    other = ANGLE_ONLY[1 - ANGLE_ONLY.index(leader)]
+    if leader not in rss or other not in rss or ref_rss - rss[leader] <= 0:
+        return []
+    return [leader, other] if ref_rss - rss[other] >= MARGIN_SHARE * (ref_rss - rss[leader]) else []
 
 
 def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dict:
@@ -75,6 +94,7 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
     whose table cannot be simulated is left out of the comparison (its reason under "failed")."""
     scores, failed = {}, {}
     done: dict = {}
+    tables: dict = {}
     for c in ids:
         k = table_kind(c)
         if k in done:                       # airflow and spring share the angle table
@@ -82,7 +102,7 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
                 scores[c] = done[k]
             continue
         try:
-            done[k] = scores[c] = float(table_heldout(cur, c, data))
+            done[k] = scores[c] = float(table_heldout(cur, c, data, tables))
         except (ValueError, TypeError, FloatingPointError, ZeroDivisionError, OverflowError,
                 np.linalg.LinAlgError) as e:
             done[k] = None
@@ -92,12 +112,26 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
         winner = next(c for c in ids if scores.get(c) == best)   # ties (shared table): the formulas' order
     else:
         winner = ids[0]
+    side = None
+    others = [v for c, v in scores.items() if table_kind(c) != "angle"]
+    if (winner in scores and table_kind(winner) == "angle" and all(c in ids for c in ANGLE_ONLY)
+            and all(v > (1.0 + 1e-6) * scores[winner] for v in others)):
+        # airflow or spring asymmetry (one table): where the learned angle torque acts decides
+        from .unmodelled import _visited, angle_torque_family
+        # (only when the angle table won outright: tables that all score the same have not moved)
+        grid, tq = next(tables[c] for c in ANGLE_ONLY if c in tables)
+        if np.any(np.abs(tq) > 0):
+            side = winner = angle_torque_family(grid, tq, np.minimum(_visited(grid, data), 200.0),
+                                                cur.spec.base.limp_home_rad)
     log("  angle-dependent torque rivals " + ", ".join(ids) + ": family tables held-out "
         + ", ".join(f"{c} {scores[c]:.3g}" if c in scores else f"{c} failed" for c in ids) + f" -> {winner}")
     ev = {"rivals": [c for c in ids if c != winner], "winner": winner,
           "heldout_table": scores, "signature": {c: SIGNATURE[c] for c in ids},
           "rule": "each family's torque table in angle (current-proportional, opposing the motion, or angle only) "
                   "fitted with its shape free; the lowest held-out angle error names the family"}
+    if side is not None:
+        ev["side"] = (f"{side}: the learned angle torque acts " + ("below limp-home (the spring's closing side)"
+                      if side == "spring_asymmetry" else "over the opening, not only below limp-home"))
     if failed:
         ev["failed"] = failed
     return ev

@@ -199,7 +199,14 @@ def _tell_apart(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, g
     # torque when the holding current follows the angle)
     ids = [c for c in ids if c == gains[0][2] or cv_gain.get(c, gains[0][0]) >= RIVAL_CV_SHARE * gains[0][0]]
     if len(ids) < 2 or len({D.table_kind(c) for c in ids}) < 2:
-        return None
+        # airflow and spring asymmetry alone: one table, told apart by where its torque acts
+        ids = D.angle_pair(screened, ref.rss, gains[0][2])
+        if not ids:
+            return None
+    screened_ids = {c for _, c, _ in screened}
+    for a, b in (D.ANGLE_ONLY, D.ANGLE_ONLY[::-1]):      # the other angle-only family shares the table: free
+        if a in ids and b not in ids and b in screened_ids:
+            ids = ids + [b]
     active = tuple(c.id for c in cur.spec.candidates)
     ctx.describe(f"round {rnd + 1}: telling {len(ids)} angle-dependent torques apart")
     evidence = D.discriminate(cur, ctx.data, ids, ctx.log)

@@ -260,15 +260,33 @@ def truth_plant(rng, effects, substeps=40, nameplate="3B"):
 
 def tie(effects, plant):
     """The truth shapes' copies of the plant's spring and open stop set to ``plant``'s (the candidates' own
-    truths, shape 0, are left as they were)."""
+    truths, shape 0, are left as they were), and the inductance drops (written for 3B: 0.8-4.5 mH of 20 mH,
+    knees at 0.5-3 A of 9.6 A) scaled to ``plant``'s inductance and current (on a 2 mH nameplate a 3B-sized
+    drop would make the inductance negative); for 3B nothing changes."""
     out = []
     for e in effects:
+        if isinstance(e, (ts.InductanceShape, fx.InductanceSaturation)):
+            e = _scale_inductance(e, plant)
         if isinstance(e, (ts.SpringShape, ts.SoftBacklash)):
             e = ts.tie_to_spring(e, plant)
         elif isinstance(e, ts.ProgressiveStop):
             e = e.with_params(contact_rad=e.params.contact_rad + plant.angle_max_rad - math.radians(90.0))
         out.append(e)
     return out
+
+
+def _scale_inductance(e, plant):
+    ref = make_plant("3B").drive.params
+    q = plant.drive.params
+    fl = q.inductance_H / ref.inductance_H
+    fi = (plant.supply.voltage_V / q.resistance_ohm) / (12.0 / ref.resistance_ohm)
+    if abs(fl - 1.0) < 1e-12 and abs(fi - 1.0) < 1e-12:
+        return e
+    over = {"inductance_drop_H": e.params.inductance_drop_H * fl}
+    for k in ("knee_current_A", "spread_A", "saturation_current_A"):
+        if hasattr(e.params, k):
+            over[k] = getattr(e.params, k) * fi
+    return e.with_params(**over)
 
 
 def sensor_model(sensor_kw, dt_s) -> SensorModel:

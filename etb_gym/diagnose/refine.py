@@ -171,6 +171,15 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
             log(f"  the generic tables fit better, but their main term ({dom[0]}) is what {sorted(named)} "
                 "describes: the catalogue's name is kept")
             return cur, steps, res
+        alt = U.catalogue_alternative(g, cur, FAMILY_OF_TERM, data, significant, log=log)
+        if alt is not None:           # a catalogue family with its own table does the generic tables' job
+            from .explain import Step, dbic
+            log(f"  {alt.id} with its table (held-out {alt.heldout:.3g}) explains what the generic tables do "
+                f"({g.heldout:.3g}): named instead of 'outside the catalogue'")
+            if alt.refinement is not None:
+                res.refinements.append(alt.refinement)
+            gain = 1.0 - alt.heldout / h_cat if h_cat > 0 else 0.0
+            return alt.fit, list(steps) + [Step(alt.id, alt.formula, dbic(alt.formula, cur), gain)], res
         res.outside = True
         res.dropped = tuple(st.id for st in steps)
         log(f"  outside the catalogue ({g.id}): held-out {g.heldout:.3g} against {h_cat:.3g} for the catalogue model"

@@ -287,6 +287,119 @@ def compare(generic: Generic, heldout_catalogue: float, rms_nominal_deg: float, 
     return bool(better or periodic)
 
 
+SPRING_SIDE_DEG = 1.0     # the spring asymmetry acts below limp-home (its blend reaches this far above it)
+SPRING_SHARE = 0.5        # ... so it is named over the airflow when this share of the angle torque lies there
+
+
+def angle_torque_family(angle_rad, torque_Nm, weight, limp_home_rad: float) -> str:
+    """Airflow or spring asymmetry, both a torque of the angle alone, told apart by where the torque acts: the
+    spring's asymmetry on the closing side below limp-home only, the airflow over the opening. ``torque_Nm``
+    over ``angle_rad`` is a torque table learned with its shape free (the generic model's or the family's angle
+    table), ``weight`` how much data each knot had; the share of sum |T| w below limp-home + SPRING_SIDE_DEG
+    (or half a knot spacing, if wider) decides."""
+    a = np.asarray(angle_rad, float)
+    w = np.abs(np.asarray(torque_Nm, float)) * np.asarray(weight, float)
+    tot = float(w.sum())
+    if not tot > 0 or not np.isfinite(limp_home_rad):
+        return "airflow_torque"
+    step = float(np.median(np.diff(a))) if a.size > 1 else 0.0       # a coarse table smears a step by a knot
+    below = float(w[a < limp_home_rad + max(np.radians(SPRING_SIDE_DEG), 0.5 * step)].sum())
+    return "spring_asymmetry" if below >= SPRING_SHARE * tot else "airflow_torque"
+
+
+FAMILY_NFEV = 40        # evaluations of a family's formula fit before its table (as explain.FULL_NFEV)
+FAMILY_TIE = 0.02       # families whose tables' held-out errors are this close: the better formula decides
+
+
+@dataclasses.dataclass
+class FamilyAlternative:
+    """A catalogue family that describes what the generic tables found: its formula fit, its refinement
+    (shapes.Refinement or None), the held-out error of formula + table and of the formula alone."""
+
+    id: str
+    formula: F.FitResult
+    refinement: object
+    heldout: float
+    heldout_formula: float
+
+    @property
+    def fit(self) -> F.FitResult:
+        r = self.refinement
+        return r.fit if (r is not None and r.kept) else self.formula
+
+
+def _try_family(cur: F.FitResult, cid: str, data: Data, log) -> FamilyAlternative | None:
+    """``cid``'s formula added to ``cur`` and fitted (coarse scan of its main parameter first), then refined by
+    its table (shapes.refine_family); None when the model cannot be simulated."""
+    from .candidates import CANDIDATES
+    from .shapes import refine_family
+    c = CANDIDATES[cid]
+    spec = cur.spec.with_candidate(c)
+    x0 = np.concatenate([cur.x, np.zeros(len(spec.params) - len(cur.x))])
+    try:
+        formula = F.fit(spec, data, x0, max_nfev=FAMILY_NFEV, scan=len(cur.x))
+        ref = refine_family(formula, cid, data, log=lambda *a: None)
+        if ref is not None:
+            return FamilyAlternative(cid, formula, ref, ref.heldout_map if ref.kept else ref.heldout_formula,
+                                     ref.heldout_formula)
+        ids = ("nominal",) + tuple(k.id for k in spec.candidates)
+        h = heldout_error(Problem.make(spec, formula.x, ids), data)
+        return FamilyAlternative(cid, formula, None, h, h)
+    except (ValueError, TypeError, FloatingPointError, ZeroDivisionError, OverflowError, np.linalg.LinAlgError) as e:
+        log(f"  {cid} as the generic tables' family: could not be fitted ({e})")
+        return None
+
+
+def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: dict, data: Data, significant,
+                          log=print) -> FamilyAlternative | None:
+    """Before a residual is called outside the catalogue: the catalogue families that act through the generic
+    model's dominant table (``family_of_term``: an angle torque -> airflow, spring asymmetry, angle-dependent
+    friction; a current torque -> shaft flux loss, torque-constant error; ...) are each added to ``cur`` with
+    their formula and their own table (shape learned from the data), and the best is returned when it does the
+    generic model's job with one table instead of four: its held-out error within GAIN_OUT of the generic's
+    (the generic tables may not win by their extra freedom alone), or its residual within the noise. A
+    periodic angle torque (no catalogue family is periodic in angle: neither the generic angle table nor the
+    family's own may be) or a family that does not lower the RMS by RMS_GAIN is no alternative. Among families
+    whose errors are within FAMILY_TIE, the better formula is taken, but airflow and spring asymmetry (one
+    table) are told apart by where the generic angle torque acts (:func:`angle_torque_family`)."""
+    if periodic_term(generic.shape) is not None:
+        return None
+    dom = generic.shape.get("significant_terms", [])
+    if not dom:
+        return None
+    named = {c.id for c in cur.spec.candidates}
+    ids = [c for c in family_of_term.get(dom[0], ()) if c not in named]
+    alts = [a for a in (_try_family(cur, c, data, log) for c in ids) if a is not None and math.isfinite(a.heldout)]
+    if not alts:
+        return None
+    best = min(a.heldout for a in alts)
+    near = [a for a in alts if a.heldout <= (1.0 + FAMILY_TIE) * best]
+    alt = min(near, key=lambda a: a.heldout_formula)
+    both = {a.id: a for a in near}
+    if "airflow_torque" in both and "spring_asymmetry" in both and "unmodelled_angle" in generic.tables:
+        # one table for both: where the free angle torque acts decides
+        ta = generic.tables["unmodelled_angle"].params
+        grid = np.asarray(ta.angle_rad)
+        alt = both[angle_torque_family(grid, ta.torque_Nm, np.minimum(_visited(grid, data), 200.0),
+                                       cur.spec.base.limp_home_rad)]
+    log("  families of the generic model's main table (" + dom[0] + "): "
+        + ", ".join(f"{a.id} held-out {a.heldout:.3g}" for a in alts) + f"; generic {generic.heldout:.3g}")
+    ref = alt.refinement
+    if ref is not None and ref.kept and ref.term.cls is mx.AngleTorqueMap:
+        tab = ref.table()              # a family's own angle table that turns out periodic: a detent, not it
+        if periodicity(np.degrees(tab["angle_rad"]), np.asarray(tab["torque_Nm"]),
+                       periods_deg=resolvable(np.degrees(tab["angle_rad"])))["periodic"]:
+            log(f"  {alt.id}'s learned angle table is periodic: no catalogue alternative")
+            return None
+    rms_cur = _rms_deg(cur.spec, cur.x, data)
+    rms_alt = _rms_deg(alt.fit.spec, alt.fit.x, data)
+    if not rms_alt <= (1.0 - RMS_GAIN) * rms_cur:
+        return None
+    if alt.heldout <= generic.heldout / (1.0 - GAIN_OUT) or not significant(alt.fit):
+        return alt
+    return None
+
+
 def periodic_term(shape: dict) -> dict | None:
     """The significant table that is periodic in angle (the angle torque's, else the current's): its
     description (periodic, period_deg, ...), or None."""
