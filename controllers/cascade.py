@@ -406,8 +406,10 @@ class PTOSController(CascadeController):
                  innovation_settle_s: float = 0.02, innovation_zone_deg: float = 1.0, rest_band_deg: float = 0.05,
                  rest_check_speed_rad_s: float = 2.0, innovation_springs: bool = True,
                  innovation_spring_share: float = 0.3, self_test: bool = True,
-                 self_test_ramp_A_per_s: float = 100.0, hold_band: float = 0.7, **kw):
+                 self_test_ramp_A_per_s: float = 100.0, hold_band: float = 0.7,
+                 reference_feedforward: float = 1.0, **kw):
         own = type(self).__name__
+        self.ff = check_gain(own, "reference_feedforward", reference_feedforward, non_negative=True, upper=1.0001)
         kw.setdefault("friction_compensation", 1.0)      # full nominal friction level, linear within 0.12 deg
         kw.setdefault("friction_zone_deg", 0.12)
         self.Kp = check_gain(own, "position_gain_rad_s", position_gain_rad_s, positive=True)
@@ -449,12 +451,24 @@ class PTOSController(CascadeController):
         self.innovation_ms = getattr(self, "innovation_ref", 0.0) ** 2
         self.observed_periods = 0
         self.r_prev = None
+        self.dr_prev = 0.0
+        self.r_rate = 0.0
         if getattr(self, "predictor", None) is not None:
             self.predictor.reset()
         if getattr(self, "selftest", None) is not None:
             self.selftest.reset()
 
+    def reference_rate(self, r_target: float) -> float:
+        """The reference's rate (rad/s) while it moves at a steady rate (ramps, the pedal profile's tip-in and
+        tip-out): the last change, when it agrees with the one before within 20 %; 0 otherwise (a step is a
+        single change: no rate)."""
+        dr = 0.0 if self.r_prev is None else r_target - self.r_prev
+        steady = dr != 0.0 and abs(dr - self.dr_prev) <= 0.2 * abs(dr)
+        self.dr_prev = dr
+        return dr / self.dt if steady else 0.0
+
     def compute(self, y: float, r_target: float, meas) -> float:
+        self.r_rate = self.ff * self.reference_rate(r_target)
         duty = super().compute(y, r_target, meas)
         e = r_target - y
         if self.predictor is None or meas.current_A is None:
@@ -498,7 +512,13 @@ class PTOSController(CascadeController):
             i_hold = st.spring_level * m.spring_torque_Nm(r_target) / m.torque_constant_Nm_per_A
             self.landing = True
             self.I = 0.0
-            d = p.duty_to_land(r_target - s * self.aim_short, s, self.V_now, i_hold, st.resistance_ohm * i_hold)
+            aim = r_target - s * self.aim_short
+            if s * self.r_rate > 0:
+                # a reference moving away at a steady rate: the landing law trails it by the stop distance of
+                # a plate that follows it; aim beyond it by that distance (policy B braking now from the
+                # reference's angle and speed with the current that carries the load there)
+                aim += s * self.tracking_lead(r_target, s, i_hold, st.resistance_ohm * i_hold)
+            d = p.duty_to_land(aim, s, self.V_now, i_hold, st.resistance_ohm * i_hold)
             if self.hold_band < 1.0 and s * d < 0 and abs(e) < self.engage:
                 # friction-aware landing: the plate stops and stays only if the coil still holds it against
                 # the springs, |k i - T_spring| < theta_f T_s; a full reverse that would empty the coil below
@@ -519,6 +539,14 @@ class PTOSController(CascadeController):
         self.landing = False
         return duty
 
+    def tracking_lead(self, r: float, s: float, i_hold: float, u_hold: float) -> float:
+        """Distance (rad) a plate following the reference (at r, the reference's rate, the current holding the
+        springs plus the friction and viscous torque of that speed) travels before it stops under policy B."""
+        m, st = self.model, self.tuning
+        i = i_hold + s * (st.friction_level * m.coulomb_Nm + m.viscous_Nm_s_per_rad * abs(self.r_rate)) \
+            / m.torque_constant_Nm_per_A
+        return abs(self.predictor.stop_angle_from(r, self.r_rate, i, -s, s, self.V_now, i_hold, u_hold) - r)
+
     def braking_accel(self, e: float, y: float, V: float) -> float:
         """a_max: deceleration of a motion towards the target (sign of e) once the drive current is gone:
         friction plus the spring when it pulls back (J: the rotor)."""
@@ -532,7 +560,7 @@ class PTOSController(CascadeController):
         a = self.alpha * self.braking_accel(e, y, V)
         x = abs(e)
         curve = math.sqrt((a * self.t_d) ** 2 + 2 * a * x) - a * self.t_d
-        v_cmd = math.copysign(min(self.Kp * x, curve), e)
+        v_cmd = math.copysign(min(self.Kp * x, curve), e) + self.r_rate
         if x < self.i_zone * (3.0 if abs(v) < self.rest_speed else 1.0) and not getattr(self, "saturated", False):
             self.I = _clip(self.I + self.Ki * self.dt * e, -self.i_lim, self.i_lim)
         elif x >= 3.0 * self.i_zone:

@@ -152,6 +152,17 @@ class StopPredictor:
             d = -s if s * (x[2] - i_hold) > 0 else hold
         return far
 
+    def stop_angle_from(self, phi: float, v: float, i: float, d0: float, s: float, V: float, i_hold: float,
+                        u_hold: float) -> float:
+        """:meth:`stop_angle` from the given plate state (angle rad, speed rad/s, current A; bristles as in
+        :meth:`set_state`) instead of the observer's; the observer's state is left as it was."""
+        saved = self._x0.copy()
+        try:
+            self.set_state(phi, v, i)
+            return self.stop_angle(d0, s, V, i_hold, u_hold)
+        finally:
+            self._x0[:] = saved
+
     def duty_to_land(self, target: float, s: float, V: float, i_hold: float, u_hold: float,
                      tolerance: float = 2e-4) -> float:
         """The duty of this period whose predicted stop lands on ``target`` (within ``tolerance`` rad; full
