@@ -407,9 +407,22 @@ class PTOSController(CascadeController):
                  rest_check_speed_rad_s: float = 2.0, innovation_springs: bool = True,
                  innovation_spring_share: float = 0.3, self_test: bool = True,
                  self_test_ramp_A_per_s: float = 100.0, hold_band: float = 0.7,
-                 reference_feedforward: float = 1.0, reference_preview_periods: float = 1.0, **kw):
+                 reference_feedforward: float = 1.0, reference_preview_periods: float = 1.0,
+                 observer_angle_gain: float = 0.5, observer_speed_gain: float = 0.25,
+                 observer_noise_schedule: bool = True, **kw):
         own = type(self).__name__
+        self.observer_angle_gain = check_gain(own, "observer_angle_gain", observer_angle_gain, non_negative=True,
+                                              upper=1.0001)
+        self.observer_speed_gain = check_gain(own, "observer_speed_gain", observer_speed_gain, non_negative=True,
+                                              upper=1.0001)
+        if not isinstance(observer_noise_schedule, bool):
+            raise ValueError(f"{own}: observer_noise_schedule = {observer_noise_schedule!r} is invalid: expected True "
+                             "or False")
+        self.speed_schedule = observer_noise_schedule
         self.preview = check_gain(own, "reference_preview_periods", reference_preview_periods, non_negative=True)
+        self._tf = kw.pop("tf", None)
+        self._xs = kw.pop("xs", 1.0)
+        self._tv = kw.pop("tv", 1e9)
         self.ff = check_gain(own, "reference_feedforward", reference_feedforward, non_negative=True, upper=1.0001)
         kw.setdefault("friction_compensation", 1.0)      # full nominal friction level, linear within 0.12 deg
         kw.setdefault("friction_zone_deg", 0.12)
@@ -483,7 +496,12 @@ class PTOSController(CascadeController):
         p = self.predictor
         p.update_levels(st.resistance_ohm, st.friction_level, st.spring_level)
         v_pred = p.speed                            # the speed the innovation's period started from
-        p.observe(y, meas.current_A, meas.last_duty, self.V_now)
+        # the observer's speed gain on the angle innovation, scheduled on the sensor noise the controller measured
+        # at rest (the resting innovation's mean square, e.g. during the key-on hold): full up to the reference
+        # innovation RMS, falling as 1/RMS beyond (each period's speed correction is gain x innovation / T: on a
+        # noisy sensor the full gain turns the noise into speed errors the landing law brakes and drives on)
+        q = min(1.0, self.innovation_ref / math.sqrt(max(self.innovation_ms, 1e-30))) if self.speed_schedule else 1.0
+        p.observe(y, meas.current_A, meas.last_duty, self.V_now, self.observer_angle_gain, self.observer_speed_gain * q)
         self.observed_periods += 1
         d_test = None
         if self.selftest is not None and self.selftest.phase != self.selftest.DONE:
