@@ -501,7 +501,8 @@ class PTOSController(CascadeController):
         # innovation RMS, falling as 1/RMS beyond (each period's speed correction is gain x innovation / T: on a
         # noisy sensor the full gain turns the noise into speed errors the landing law brakes and drives on)
         q = min(1.0, self.innovation_ref / math.sqrt(max(self.innovation_ms, 1e-30))) if self.speed_schedule else 1.0
-        p.observe(y, meas.current_A, meas.last_duty, self.V_now, self.observer_angle_gain, self.observer_speed_gain * q)
+        self.speed_gain_now = self.observer_speed_gain * q
+        p.observe(y, meas.current_A, meas.last_duty, self.V_now, self.observer_angle_gain, self.speed_gain_now)
         self.observed_periods += 1
         d_test = None
         if self.selftest is not None and self.selftest.phase != self.selftest.DONE:
