@@ -409,7 +409,8 @@ class PTOSController(CascadeController):
                  self_test_ramp_A_per_s: float = 100.0, hold_band: float = 0.7,
                  reference_feedforward: float = 1.0, reference_preview_periods: float = 1.0,
                  observer_angle_gain: float = 0.5, observer_speed_gain: float = 0.25,
-                 observer_noise_schedule: bool = True, **kw):
+                 observer_noise_schedule: bool = True, follow_current_floor: float = 0.8,
+                 follow_headroom: float = 0.2, **kw):
         own = type(self).__name__
         self.observer_angle_gain = check_gain(own, "observer_angle_gain", observer_angle_gain, non_negative=True,
                                               upper=1.0001)
@@ -419,10 +420,10 @@ class PTOSController(CascadeController):
             raise ValueError(f"{own}: observer_noise_schedule = {observer_noise_schedule!r} is invalid: expected True "
                              "or False")
         self.speed_schedule = observer_noise_schedule
+        self.follow_floor = check_gain(own, "follow_current_floor", follow_current_floor, non_negative=True,
+                                       upper=1.0001)
+        self.follow_headroom = check_gain(own, "follow_headroom", follow_headroom, non_negative=True, upper=1.0001)
         self.preview = check_gain(own, "reference_preview_periods", reference_preview_periods, non_negative=True)
-        self._tf = kw.pop("tf", None)
-        self._xs = kw.pop("xs", 1.0)
-        self._tv = kw.pop("tv", 1e9)
         self.ff = check_gain(own, "reference_feedforward", reference_feedforward, non_negative=True, upper=1.0001)
         kw.setdefault("friction_compensation", 1.0)      # full nominal friction level, linear within 0.12 deg
         kw.setdefault("friction_zone_deg", 0.12)
@@ -558,11 +559,32 @@ class PTOSController(CascadeController):
                     i_goal = i_hold - s * edge
                     d_edge = (R * meas.current_A + k * p.speed + L * (i_goal - meas.current_A) / self.dt) / self.V_now
                     d = max(-1.0, min(1.0, d_edge)) if s * d_edge > s * d else d
+            if s * self.r_rate > 0 and self.follow_floor > 0:
+                d = self.follow_floor_duty(d, s, y, i_hold)
             return d
         if self.landing:                            # the predicted move has ended: the capture law finishes
             self.landed_at = r_target
         self.landing = False
         return duty
+
+    def follow_floor_duty(self, d: float, s: float, y: float, i_hold: float) -> float:
+        """Following a reference that moves away (direction s) with little voltage headroom: the landing law
+        plans to stop the plate at its aim, and on a plate slightly ahead it brakes the coil below the current
+        that carries the load; with this rotor's inertia the plate stops within a period and sticks, and
+        restarting it needs the break-away current, which the coil reaches only at (V - u_follow) / L. So when
+        the voltage that carries the plate along the reference, u_follow = R_hat (i_hold + theta_f T_c / k)
+        + k r_rate, exceeds (1 - ``follow_headroom``) of the battery, the duty is kept at least at the one whose
+        current at the end of the period (the compiled model, :meth:`.predictive.StopPredictor.duty_for_current`)
+        holds the springs plus ``follow_current_floor`` of the friction at the plate: it may slow the plate
+        (at most (1 - floor) theta_f T_c / J) but not stop it."""
+        m, st = self.model, self.tuning
+        k = m.torque_constant_Nm_per_A
+        u_follow = st.resistance_ohm * (i_hold + s * st.friction_level * m.coulomb_Nm / k) + k * self.r_rate
+        if s * u_follow <= (1.0 - self.follow_headroom) * self.V_now:
+            return d
+        i_goal = (st.spring_level * m.spring_torque_Nm(y) + s * self.follow_floor * st.friction_level * m.coulomb_Nm) / k
+        d_floor = self.predictor.duty_for_current(i_goal, self.V_now)
+        return max(-1.0, min(1.0, d_floor)) if s * d_floor > s * d else d
 
     def tracking_lead(self, r: float, s: float, i_hold: float, u_hold: float) -> float:
         """Distance (rad) a plate following the reference (at r, the reference's rate, the current holding the

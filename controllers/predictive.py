@@ -152,6 +152,21 @@ class StopPredictor:
             d = -s if s * (x[2] - i_hold) > 0 else hold
         return far
 
+    def duty_for_current(self, i_goal: float, V: float) -> float:
+        """The duty of this period whose current at its end (the compiled model from the set state: the
+        saturating inductance, the back-EMF) is ``i_goal`` A; the end current is affine in the duty over one
+        period to the model's accuracy, so two predictions (full reverse, full drive) interpolate it. Not clipped."""
+        x, P, aux = self._x, self.P, self._aux
+        ends = []
+        for d in (-1.0, 1.0):
+            x[:] = self._x0
+            self._step(x, d, V, P, 0.0, self.dt, self._nsub, self._switching, self._fpwm, aux)
+            ends.append(float(x[2]))
+        lo, hi = ends
+        if hi - lo <= 1e-12:
+            return 0.0
+        return -1.0 + 2.0 * (i_goal - lo) / (hi - lo)
+
     def stop_angle_from(self, phi: float, v: float, i: float, d0: float, s: float, V: float, i_hold: float,
                         u_hold: float) -> float:
         """:meth:`stop_angle` from the given plate state (angle rad, speed rad/s, current A; bristles as in
