@@ -343,23 +343,53 @@ def test_stop_prediction_from_a_given_state_leaves_the_observer():
     assert p.stop_angle(*args) == pytest.approx(far)
 
 
-def test_ptos_ramp_tracked_without_lag_at_low_battery():
+def test_ptos_ramp_tracked_without_lag_at_low_battery_and_hot_coil():
     """10->80 deg ramp (140 deg/s). The duty acts over the coming period and the plate is scored against the
     reference at its end: followed where the env showed it (reference_preview_periods=0) the plate trails by one
     period of the ramp, 0.14 deg (nominal RMS 0.140); followed where it will be, the mid-ramp mean error is ~0
-    (RMS 0.063). Aiming beyond the reference by the stop distance of a plate that follows it keeps 9 V close
-    (0.102; the ramp bound of scripts/ramp_bound.py is 0.074 at 9 V, 0.049 nominal)."""
+    (RMS 0.063). At 125 C the end of the ramp needs 11.5 of the 12 V: without the follow floor the landing law
+    stopped the plate, which then stuck (0.106); with it 0.077. 9 V: 0.111 (the ramp bound of
+    scripts/ramp_bound.py: 0.049 nominal, 0.067 at 125 C, 0.074 at 9 V)."""
     from etb_gym.benchmark import SCENARIOS, Job, metrics, simulate
 
     rms, lag = {}, {}
-    for v, kw in (("nominal", ()), ("supply_9V", ()), ("nominal", (("reference_preview_periods", 0.0),))):
+    late = ("nominal", (("reference_preview_periods", 0.0),))
+    for v, kw in (("nominal", ()), ("supply_9V", ()), ("coil_125C", ()), late):
         tr, _ = simulate(Job("ETB-3B-v0", "ptos", "ramp_10_80", v, 0, kw))
         rms[v, kw] = metrics(tr, SCENARIOS["ramp_10_80"])["rms_error_deg"]
         e = tr["reference_deg"] - tr["angle_deg"]
         lag[v, kw] = float(np.mean(e[(tr["t_s"] > 0.35) & (tr["t_s"] < 0.75)]))
-    late = ("nominal", (("reference_preview_periods", 0.0),))
     assert lag[late] > 0.1 and abs(lag["nominal", ()]) < 0.03, lag
-    assert rms["nominal", ()] < 0.09 and rms["supply_9V", ()] < 0.13 and rms["nominal", ()] < 0.7 * rms[late], rms
+    assert rms["nominal", ()] < 0.09 and rms["nominal", ()] < 0.7 * rms[late], rms
+    assert rms["supply_9V", ()] < 0.13 and rms["coil_125C", ()] < 0.09, rms
+
+
+def test_ptos_follow_floor_keeps_the_coil_carrying_the_load_when_headroom_is_low():
+    """Following a ramp (2.44 rad/s) at 75 deg: with a hot coil (R x 1.41) the following voltage exceeds 80 % of
+    the battery, and a full-reverse brake is raised to the duty whose end current (the compiled model) holds the
+    springs plus 0.8 of the friction; with the nominal coil (headroom left) the brake is left alone, and a duty
+    above the floor is never lowered. The options are checked."""
+    c = make_controller("ptos")
+    c.reset(0)
+    m, p = c.model, c.predictor
+    k = m.torque_constant_Nm_per_A
+    y = math.radians(75.0)
+    i_hold = m.spring_torque_Nm(y) / k
+    c.V_now, c.r_rate = 12.0, 2.44
+    p.set_state(y, 2.3, i_hold + m.coulomb_Nm / k)
+    assert c.follow_floor_duty(-1.0, 1.0, y, i_hold) == -1.0          # nominal coil: headroom left
+    c.tuning.resistance_ohm = 1.41 * m.resistance_ohm
+    p.update_levels(c.tuning.resistance_ohm, 1.0, 1.0)
+    d = c.follow_floor_duty(-1.0, 1.0, y, i_hold)
+    i_goal = i_hold + 0.8 * m.coulomb_Nm / k
+    x = p._x0.copy()
+    m.plant.step(x, d, 12.0, P=p.P)
+    assert -1.0 < d < 1.0 and x[2] == pytest.approx(i_goal, abs=0.05), (d, x[2], i_goal)
+    assert c.follow_floor_duty(1.0, 1.0, y, i_hold) == 1.0
+    with pytest.raises(ValueError, match="follow_current_floor"):
+        make_controller("ptos", follow_current_floor=-0.1)
+    with pytest.raises(ValueError, match="follow_headroom"):
+        make_controller("ptos", follow_headroom=float("nan"))
 
 
 def test_ptos_observer_speed_gain_follows_the_measured_sensor_noise():
