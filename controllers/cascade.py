@@ -389,6 +389,14 @@ class PTOSController(CascadeController):
     friction level alone, the pedal profile at springs -20 % learnt the weaker spring as less friction on its
     opening ramps and lagged 8 deg on the next closing ramp (1.38 deg RMS).
 
+    A reference moving at a steady rate is followed where it will be at the end of the period the duty acts
+    over (``reference_preview_periods`` periods of its rate ahead; the env shows it at the start): without
+    this a 140 deg/s ramp was tracked 0.14 deg behind. While it moves away with little voltage headroom (the
+    voltage that carries the plate along it above 1 - ``follow_headroom`` of the battery) the landing law does
+    not brake the coil below the springs plus ``follow_current_floor`` of the friction (:meth:`follow_floor_duty`).
+    The observer's speed gain (``observer_speed_gain``) falls as 1/RMS of the resting innovation beyond
+    ``innovation_noise_deg`` (``observer_noise_schedule``): the sensor noise measured at rest.
+
     The predictor's observer has a rest check (``rest_band_deg``, ``rest_check_speed_rad_s``): when the sensed
     angle has stayed within the band for two periods, an observer speed above the check speed is replaced by
     the sensed one (see :meth:`.predictive.StopPredictor.observe`). After a landing the capture law keeps the
