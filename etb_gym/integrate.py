@@ -101,7 +101,8 @@ def layout(components, param_vectors) -> Layout:
     return Layout(s0, p0, tuple(ss), tuple(ps))
 
 
-H_MAX_S = 2e-4   # the longest substep [s]: the scheme's stability limit on the end-stop contact is ~270 us
+H_MAX_S = 2.5e-4   # the longest substep [s]: LuGre's bristle damping 2 sigma_1/J bounds the explicit midpoint at 273 us
+RHO_STIFF = 1.2    # a slow stiff contact (negative rate -r) with h r above this is cut into pieces of h r <= RHO_STIFF
 GROUP = 2   # plants stepped in lockstep by batch_step (averaged PWM): -9 % CPU per plant-step, same bits
 
 
@@ -137,6 +138,7 @@ N_SCRATCH = {3 * ns}
 GROUP = {G}
 RHO_MIN = 0.01
 RHO_MAX = 0.5
+RHO_STIFF = {RHO_STIFF!r}
 MAX_SPLITS = 4
 CONTACT_PIECES = 3
 MAX_PIECES = 64
@@ -428,7 +430,7 @@ JIT_OPTIONS = {
     "batch_step": {"parallel": True},
     "batch_step_serial": {},
 }
-STEPPER_REVISION = "7"   # bump when kernel_cache.borrow() or JIT_OPTIONS change: part of the kernel-cache digest
+STEPPER_REVISION = "8"   # bump when kernel_cache.borrow() or JIT_OPTIONS change: part of the kernel-cache digest
 
 
 class Engine:
