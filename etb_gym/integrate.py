@@ -31,7 +31,7 @@ measure bought: docs/speed.md. The scheme and its accuracy: docs/model.md, sec. 
 State vector x = [phi_rad, omega_rad_s, i_A, <component states in plant order>];
 parameter vector P = [J_kg_m2, <component parameter vectors in plant order>].
 
-Substeps: n = max(n_sub, ceil(dt / H_MAX_S)), h = dt / n (``substeps_for``; H_MAX_S = 200 us, the stability
+Substeps: n = max(n_sub, ceil(dt / H_MAX_S)), h = dt / n (``substeps_for``; H_MAX_S = 250 us, the stability
 bound). Scheme (second order, Strang splitting): the states of components with an ``advance`` (bristles)
 form flow A, updated exactly for a frozen shaft and coil state; everything else (phi, omega, i, the other
 states) forms flow B, integrated by the explicit midpoint rule with the A states frozen:
@@ -42,7 +42,9 @@ the half step still owed); a control period begins with A(h/2) and ends with A(h
 Contacts. A component may declare ``edges`` (angles where its torque jumps: stops, limp-home band) and
 ``rate`` (sqrt(k/J) while an impact is under way). ``step`` redoes a substep that crosses an edge in pieces
 split at the crossing, and cuts a substep in an impact into m = max(CONTACT_PIECES, ceil(h r / RHO_MAX))
-pieces when h r > RHO_MIN (``resolve``, the rare path, not inlined). The rate at the end of a substep is
+pieces when h r > RHO_MIN (``resolve``, the rare path, not inlined). A negative rate -r marks a slow contact as
+stiff (a plate pressed into a stop): where h r > RHO_STIFF the substep is cut into ceil(h r / RHO_STIFF) pieces,
+which keeps the explicit midpoint rule stable on it (otherwise it is stepped as free flight). The rate at the end of a substep is
 handed to the next one (``r``), so ``rates`` runs once per substep. ``physical`` checks after each control
 period that the state is finite and every component's ``plausible`` holds (no garbage past divergence).
 

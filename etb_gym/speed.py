@@ -94,9 +94,15 @@ def parse_args(argv=None):
     ap.add_argument("--seed", type=int, default=0, help="seed of envs and actions (default 0)")
     ap.add_argument("--baseline", metavar="REV", default=None,
                     help="a git revision to measure side by side with this tree (before -> after medians)")
+    ap.add_argument("--baseline-substeps", type=int, default=None, metavar="N",
+                    help="with --baseline: also time REV's make_vec at N substeps (REV's own fewest substeps for "
+                         "the equal accuracy, e.g. 5 for the stepper of issue 12 at h_max = 200 us; REV raises N "
+                         "to what its h_max allows)")
     a = ap.parse_args(argv)
     if a.threads is not None and a.threads < 1:
         ap.error(f"--threads = {a.threads}: expected an integer >= 1")
+    if a.baseline_substeps is not None and (a.baseline is None or a.baseline_substeps < 1):
+        ap.error(f"--baseline-substeps = {a.baseline_substeps}: expected an integer >= 1, with --baseline")
     if a.repeats < 1:
         ap.error(f"--repeats = {a.repeats}: expected an integer >= 1")
     if not (math.isfinite(a.seconds) and a.seconds > 0):
