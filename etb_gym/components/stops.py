@@ -72,14 +72,14 @@ def end_stops_rate(phi, omega, J, p):
     100 rad/s carries 0.15 J); -sqrt(k/J) in a slow contact that presses (a plate resting in a stop: smooth, but
     as stiff as an impact: a substep too long for it is cut into pieces, integrate.py "Contacts"); else 0."""
     d = p[0] - phi
-    f = p[2] * d - p[3] * omega
+    s = -1.0                     # the sign of the damping term in the contact force: -c omega closed, +c omega open
     if d <= 0.0:
         d = phi - p[1]
-        f = p[2] * d + p[3] * omega
+        s = 1.0
     if d > 0.0:
         if J * omega * omega + p[2] * d * d > 2.0 * IMPACT_ENERGY_J:
             return math.sqrt(p[2] / J)
-        if f > 0.0:
+        if p[2] * d + s * p[3] * omega > 0.0:
             return -math.sqrt(p[2] / J)
     return 0.0
 
