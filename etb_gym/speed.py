@@ -7,6 +7,7 @@ speed harness (``etb-gym speed``, ``python -m etb_gym.speed``; scripts/bench_spe
     etb-gym speed --plant my_plant.toml                 # benchmark a plant file (e.g. with diagnosed effects)
     etb-gym speed --json-out speed.json                 # also write the JSON object to a file (atomic)
     etb-gym speed --baseline 5dc542e                    # before/after: that git revision vs this tree
+    etb-gym speed --baseline 14d52f1 --baseline-substeps 5   # ... and that revision's make_vec at 5 substeps
     etb-gym speed --env-id ETB-1A-v0 --num-envs 1 256 --compare CartPole-v1
 
 What is measured (every case with gymnasium's default wrappers of ``gym.make`` and random actions drawn
