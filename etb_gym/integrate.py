@@ -42,11 +42,12 @@ the half step still owed); a control period begins with A(h/2) and ends with A(h
 Contacts. A component may declare ``edges`` (angles where its torque jumps: stops, limp-home band) and
 ``rate`` (sqrt(k/J) while an impact is under way). ``step`` redoes a substep that crosses an edge in pieces
 split at the crossing, and cuts a substep in an impact into m = max(CONTACT_PIECES, ceil(h r / RHO_MAX))
-pieces when h r > RHO_MIN (``resolve``, the rare path, not inlined). A negative rate -r marks a slow contact as
-stiff (a plate pressed into a stop): where h r > RHO_STIFF the substep is cut into ceil(h r / RHO_STIFF) pieces,
-which keeps the explicit midpoint rule stable on it (otherwise it is stepped as free flight). The rate at the end of a substep is
-handed to the next one (``r``), so ``rates`` runs once per substep. ``physical`` checks after each control
-period that the state is finite and every component's ``plausible`` holds (no garbage past divergence).
+pieces when h r > RHO_MIN (``resolve``, the rare path, not inlined). A negative rate -r marks a slow contact
+as stiff (a plate pressed into a stop): where h r > RHO_STIFF the substep is cut into ceil(h r / RHO_STIFF)
+pieces, which keeps the explicit midpoint rule stable on it (otherwise it is stepped as free flight). The rate
+at the end of a substep is handed to the next one (``r``), so ``rates`` runs once per substep. ``physical``
+checks after each control period that the state is finite and every component's ``plausible`` holds (no
+garbage past divergence).
 
 Carried values. A component may declare ``carry(phi, omega, i, p)``, a value of the shaft and coil state
 that its kernel and its advance both need (LuGre: the Stribeck curve g(omega)); its kernel and advance
