@@ -31,7 +31,7 @@ measure bought: docs/speed.md. The scheme and its accuracy: docs/model.md, sec. 
 State vector x = [phi_rad, omega_rad_s, i_A, <component states in plant order>];
 parameter vector P = [J_kg_m2, <component parameter vectors in plant order>].
 
-Substeps: n = max(n_sub, ceil(dt / H_MAX_S)), h = dt / n (``substeps_for``; H_MAX_S = 200 us, the stability
+Substeps: n = max(n_sub, ceil(dt / H_MAX_S)), h = dt / n (``substeps_for``; H_MAX_S = 250 us, the stability
 bound). Scheme (second order, Strang splitting): the states of components with an ``advance`` (bristles)
 form flow A, updated exactly for a frozen shaft and coil state; everything else (phi, omega, i, the other
 states) forms flow B, integrated by the explicit midpoint rule with the A states frozen:
@@ -42,9 +42,12 @@ the half step still owed); a control period begins with A(h/2) and ends with A(h
 Contacts. A component may declare ``edges`` (angles where its torque jumps: stops, limp-home band) and
 ``rate`` (sqrt(k/J) while an impact is under way). ``step`` redoes a substep that crosses an edge in pieces
 split at the crossing, and cuts a substep in an impact into m = max(CONTACT_PIECES, ceil(h r / RHO_MAX))
-pieces when h r > RHO_MIN (``resolve``, the rare path, not inlined). The rate at the end of a substep is
-handed to the next one (``r``), so ``rates`` runs once per substep. ``physical`` checks after each control
-period that the state is finite and every component's ``plausible`` holds (no garbage past divergence).
+pieces when h r > RHO_MIN (``resolve``, the rare path, not inlined). A negative rate -r marks a slow contact
+as stiff (a plate pressed into a stop): where h r > RHO_STIFF the substep is cut into ceil(h r / RHO_STIFF)
+pieces, which keeps the explicit midpoint rule stable on it (otherwise it is stepped as free flight). The rate
+at the end of a substep is handed to the next one (``r``), so ``rates`` runs once per substep. ``physical``
+checks after each control period that the state is finite and every component's ``plausible`` holds (no
+garbage past divergence).
 
 Carried values. A component may declare ``carry(phi, omega, i, p)``, a value of the shaft and coil state
 that its kernel and its advance both need (LuGre: the Stribeck curve g(omega)); its kernel and advance
@@ -101,7 +104,8 @@ def layout(components, param_vectors) -> Layout:
     return Layout(s0, p0, tuple(ss), tuple(ps))
 
 
-H_MAX_S = 2e-4   # the longest substep [s]: the scheme's stability limit on the end-stop contact is ~270 us
+H_MAX_S = 2.5e-4   # the longest substep [s]: LuGre's bristle damping 2 sigma_1/J bounds the explicit midpoint at 273 us
+RHO_STIFF = 1.2    # a slow stiff contact (negative rate -r) with h r above this is cut into pieces of h r <= RHO_STIFF
 GROUP = 2   # plants stepped in lockstep by batch_step (averaged PWM): -9 % CPU per plant-step, same bits
 
 
@@ -137,6 +141,7 @@ N_SCRATCH = {3 * ns}
 GROUP = {G}
 RHO_MIN = 0.01
 RHO_MAX = 0.5
+RHO_STIFF = {RHO_STIFF!r}
 MAX_SPLITS = 4
 CONTACT_PIECES = 3
 MAX_PIECES = 64
@@ -428,7 +433,7 @@ JIT_OPTIONS = {
     "batch_step": {"parallel": True},
     "batch_step_serial": {},
 }
-STEPPER_REVISION = "7"   # bump when kernel_cache.borrow() or JIT_OPTIONS change: part of the kernel-cache digest
+STEPPER_REVISION = "8"   # bump when kernel_cache.borrow() or JIT_OPTIONS change: part of the kernel-cache digest
 
 
 class Engine:

@@ -7,6 +7,7 @@ speed harness (``etb-gym speed``, ``python -m etb_gym.speed``; scripts/bench_spe
     etb-gym speed --plant my_plant.toml                 # benchmark a plant file (e.g. with diagnosed effects)
     etb-gym speed --json-out speed.json                 # also write the JSON object to a file (atomic)
     etb-gym speed --baseline 5dc542e                    # before/after: that git revision vs this tree
+    etb-gym speed --baseline 14d52f1 --baseline-substeps 5   # ... and that revision's make_vec at 5 substeps
     etb-gym speed --env-id ETB-1A-v0 --num-envs 1 256 --compare CartPole-v1
 
 What is measured (every case with gymnasium's default wrappers of ``gym.make`` and random actions drawn
@@ -94,9 +95,15 @@ def parse_args(argv=None):
     ap.add_argument("--seed", type=int, default=0, help="seed of envs and actions (default 0)")
     ap.add_argument("--baseline", metavar="REV", default=None,
                     help="a git revision to measure side by side with this tree (before -> after medians)")
+    ap.add_argument("--baseline-substeps", type=int, default=None, metavar="N",
+                    help="with --baseline: also time REV's make_vec at N substeps (REV's own fewest substeps for "
+                         "the equal accuracy, e.g. 5 for the stepper of issue 12 at h_max = 200 us; REV raises N "
+                         "to what its h_max allows)")
     a = ap.parse_args(argv)
     if a.threads is not None and a.threads < 1:
         ap.error(f"--threads = {a.threads}: expected an integer >= 1")
+    if a.baseline_substeps is not None and (a.baseline is None or a.baseline_substeps < 1):
+        ap.error(f"--baseline-substeps = {a.baseline_substeps}: expected an integer >= 1, with --baseline")
     if a.repeats < 1:
         ap.error(f"--repeats = {a.repeats}: expected an integer >= 1")
     if not (math.isfinite(a.seconds) and a.seconds > 0):

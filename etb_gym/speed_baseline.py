@@ -64,7 +64,10 @@ def compare_with_baseline(args, eq):
         env_before = dict(os.environ, PYTHONPATH=str(pkg))
         extra = [] if args.equal_accuracy_substeps is None else \
             ["--equal-accuracy-substeps", str(args.equal_accuracy_substeps)]
-        runs = {"before": ([sys.executable, str(src / "scripts" / "bench_speed.py"), *common], env_before),
+        before_extra = [] if args.baseline_substeps is None else \
+            ["--equal-accuracy-substeps", str(args.baseline_substeps)]
+        runs = {"before": ([sys.executable, str(src / "scripts" / "bench_speed.py"), *common, *before_extra],
+                           env_before),
                 "after": ([sys.executable, "-m", "etb_gym.speed", *common, *extra], dict(os.environ))}
         results = {k: [] for k in runs}
         load_start = machine_info().get("loadavg_1min")
@@ -96,6 +99,11 @@ def compare_with_baseline(args, eq):
         print(f"| make_vec N={n_max} at equal accuracy ({EQUAL_ACCURACY_DEG} deg RMS): before at its 20 substeps, "
               f"after at {args.equal_accuracy_substeps} | {fmt_rate(eq_before)} | {fmt_rate(eq_after)} | "
               f"{eq_after / eq_before:.2f} |")
+    eq_before_own = med["before"].get("vector_steps_per_s_at_equal_accuracy")
+    if eq_after is not None and eq_before_own is not None:
+        print(f"| make_vec N={n_max} at equal accuracy: before at {args.baseline_substeps} substeps "
+              f"(--baseline-substeps), after at {args.equal_accuracy_substeps} | {fmt_rate(eq_before_own)} | "
+              f"{fmt_rate(eq_after)} | {eq_after / eq_before_own:.2f} |")
     res = dict(results["after"][-1])
     dt = res["etb_sim_s_per_wall_s"] / res["etb_steps_per_s"]      # the control period (of the last run)
     res.update({k: med["after"][k] for k in ("etb_steps_per_s", "reset_us", "pendulum_steps_per_s", "gem_steps_per_s",
@@ -110,6 +118,8 @@ def compare_with_baseline(args, eq):
     res["vector_steps_per_s_at_equal_accuracy"] = eq_after
     res["ratio_vector_at_equal_accuracy_vs_baseline"] = None if eq_after is None or eq_before is None \
         else eq_after / eq_before
+    res["ratio_vector_at_equal_accuracy_vs_baseline_at_its_substeps"] = \
+        None if eq_after is None or eq_before_own is None else eq_after / eq_before_own
     if args.json_out:
         atomic_write(Path(args.json_out), json.dumps(res, indent=2) + "\n")
     print(json.dumps(res))

@@ -79,8 +79,8 @@ def flow_blocks(components, lay, cv: Carries):
 
 
 def contact_functions(components, lay):
-    """Bodies of edges (the first edge crossing), rates (the largest contact rate) and physical's plausibility
-    checks: (edges_block, rate_block, plaus_block)."""
+    """Bodies of edges (the first edge crossing), rates (the largest impact rate; else the most negative rate, that
+    of the stiffest slow contact) and physical's plausibility checks: (edges_block, rate_block, plaus_block)."""
     edge_lines, rate_lines, plaus = [], [], []
     for k, c in enumerate(components):
         p0, p1 = lay.param_slices[k]
@@ -88,17 +88,20 @@ def contact_functions(components, lay):
             edge_lines += [f"    e = d{k}(phi0, omega0, phi1, omega1, P[{p0}:{p1}])", "    if e < th:",
                            "        th = e"]
         if c.rate is not None:
-            rate_lines += [f"    r = r{k}(x[0], x[1], P[0], P[{p0}:{p1}])", "    if r > rmax:", "        rmax = r"]
+            rate_lines += [f"    r = r{k}(x[0], x[1], P[0], P[{p0}:{p1}])", "    if r > rmax:", "        rmax = r",
+                           "    elif r < rmin:", "        rmin = r"]
         if c.plausible is not None:
             plaus += [f"    if not b{k}(x[0], x[1], x[2], V, P[{p0}:{p1}]):", "        ok = False"]
     return ("\n".join(["    th = 2.0"] + edge_lines + ["    return th"]),
-            "\n".join(["    rmax = 0.0"] + rate_lines + ["    return rmax"]),
+            "\n".join(["    rmax = 0.0", "    rmin = 0.0"] + rate_lines
+                      + ["    if rmax > 0.0:", "        return rmax", "    return rmin"]),
             "\n".join(plaus))
 
 
 def step_blocks(components, lay, cv: Carries):
-    """Bodies of step (one substep; to resolve when it crosses an edge or is in an impact) and resolve (pieces,
-    splits at edges): (step_block, resolve_block). Without edges or rates, step is the plain substep."""
+    """Bodies of step (one substep; to resolve when it crosses an edge, is in an impact or in a slow contact too
+    stiff for it) and resolve (pieces, splits at edges): (step_block, resolve_block). Without edges or rates, step
+    is the plain substep."""
     ns = lay.n_states
     if not any(c.edges is not None or c.rate is not None for c in components):
         step_block = (f"    {cv.set()}substep(t, h, hp + 0.5 * h, x, u, P, dx, aux{cv.args()})\n"
@@ -106,12 +109,12 @@ def step_blocks(components, lay, cv: Carries):
         return step_block, f"    return 0.5 * h{cv.names()}, r\n"
     save = "".join(f"    s{j} = x[{j}]\n" for j in range(ns))
     restore = "".join(f"    x[{j}] = s{j}\n" for j in range(ns))
-    step_block = f"""    if h * r > RHO_MIN:      # in a stiff contact: straight to the careful path
+    step_block = f"""    if h * r > RHO_MIN or h * r < -RHO_STIFF:      # in a stiff contact: straight to the careful path
         return resolve(t, h, hp, r, x, u, P, dx, aux{cv.args()})
 {save}    {cv.set("n")}substep(t, h, hp + 0.5 * h, x, u, P, dx, aux{cv.args()})
     th = edges(s0, s1, x[0], x[1], P)
     r1 = rates(x, P)
-    if th >= 1.0 and h * r1 <= RHO_MIN:
+    if th >= 1.0 and -RHO_STIFF <= h * r1 <= RHO_MIN:
         return 0.5 * h{cv.names("n")}, r1
 {restore}    return resolve(t, h, hp, r1, x, u, P, dx, aux{cv.args()})"""
     resolve_block = f"""    m = 1
@@ -119,6 +122,8 @@ def step_blocks(components, lay, cv: Carries):
         m = int(math.ceil(h * r / RHO_MAX - 1e-9))
         if m < CONTACT_PIECES:
             m = CONTACT_PIECES
+    elif h * r < -RHO_STIFF:
+        m = int(math.ceil(-h * r / RHO_STIFF - 1e-9))
     if m > MAX_PIECES:
         m = MAX_PIECES
     hs = h / m

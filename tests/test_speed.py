@@ -88,7 +88,7 @@ def test_baseline_tree_is_importable(tmp_path):
 
 def test_rejects_bad_arguments(capsys):
     for bad in (["--repeats", "0"], ["--seconds", "-1"], ["--num-envs", "0"], ["--plant", "/nonexistent.toml"],
-                ["--threads", "0"]):
+                ["--threads", "0"], ["--baseline-substeps", "5"], ["--baseline", "HEAD", "--baseline-substeps", "0"]):
         with pytest.raises(SystemExit):
             speed.parse_args(bad)
         assert "expected" in capsys.readouterr().err

@@ -33,7 +33,9 @@ there, so that the scheme's order is not lost to the jump (etb_gym/integrate.py,
 A stiff contact declares ``rate(phi, omega, J, p) -> 1/s``: the natural frequency sqrt(k/J) of the contact
 while an impact is under way at (phi, omega) (J the inertia), 0 otherwise. The stepper cuts a substep that would be
 too long for it into pieces of at most RHO_MAX / rate (integrate.py, "Contacts"), so an
-impact is integrated accurately at any substep.
+impact is integrated accurately at any substep. A contact as stiff but slow (a plate pressed into a stop) may
+return -sqrt(k/J): the stepper then cuts a substep only where h sqrt(k/J) > RHO_STIFF, into pieces the explicit
+midpoint rule is stable on (integrate.py, "Contacts").
 
 A component that knows where its physics ends declares ``plausible(phi, omega, i, supply_V, p) -> bool``
 (the end stops: the plate is not far beyond a stop; a drive: the coil current is not far beyond what the

@@ -69,12 +69,18 @@ IMPACT_ENERGY_J = 1e-3   # a contact with more energy than this is an impact: in
 @kernel
 def end_stops_rate(phi, omega, J, p):
     """sqrt(k/J) during an impact (in a stop with kinetic + elastic energy above IMPACT_ENERGY_J: a plate at
-    100 rad/s carries 0.15 J), else 0 (between the stops, or resting in one: a smooth, slow contact)."""
+    100 rad/s carries 0.15 J); -sqrt(k/J) in a slow contact that presses (a plate resting in a stop: smooth, but
+    as stiff as an impact: a substep too long for it is cut into pieces, integrate.py "Contacts"); else 0."""
     d = p[0] - phi
+    s = -1.0                     # the sign of the damping term in the contact force: -c omega closed, +c omega open
     if d <= 0.0:
         d = phi - p[1]
-    if d > 0.0 and J * omega * omega + p[2] * d * d > 2.0 * IMPACT_ENERGY_J:
-        return math.sqrt(p[2] / J)
+        s = 1.0
+    if d > 0.0:
+        if J * omega * omega + p[2] * d * d > 2.0 * IMPACT_ENERGY_J:
+            return math.sqrt(p[2] / J)
+        if p[2] * d + s * p[3] * omega > 0.0:
+            return -math.sqrt(p[2] / J)
     return 0.0
 
 
