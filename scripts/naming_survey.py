@@ -14,6 +14,11 @@ Rows go to --out (JSON lines, one per case, appended whole as each case finishes
     python scripts/naming_survey.py --summary out/survey_before.jsonl out/survey_after.jsonl
     python scripts/naming_survey.py --out out/survey_after.jsonl --redo-misses out/survey_before.jsonl
     python scripts/naming_survey.py --out out/survey_after.jsonl --same-as out/survey_before.jsonl
+    python scripts/naming_survey.py --out out/s.jsonl --seed-index 1 2 --loops closed --keep out/s_reports
+
+Rows keep the diagnosis's CPU time (report.json ``cpu_s``; the summary scales it to a 10 s recording) and, on
+closed loops, the effect's footprint as the observer residual sees it (``effect_size_observer``: the replay
+footprint ``effect_size`` overstates what a closed loop shows; docs/diagnosis.md, "Survey subset").
 """
 from __future__ import annotations
 
@@ -21,6 +26,7 @@ import argparse
 import json
 import os
 import random
+import shutil
 import sys
 import tempfile
 import time
@@ -58,16 +64,27 @@ def key(c) -> tuple:
     return c.get("case", c.get("family")), c["nameplate"], c["seed"]
 
 
-def run_one(c: dict, duration: float) -> dict:
+KEEP_FILES = ("report.json", "report.md")
+
+
+def run_one(c: dict, duration: float, keep: str | None = None) -> dict:
+    """One case; ``keep``: a folder where the case's report (report.json, report.md) is kept for a post-mortem
+    (in ``CASE_RIG_SEED/``), else everything is removed with the case's temporary folder."""
     from etb_gym.diagnose import proof
     opts = proof._parser().parse_args(["--duration", str(duration), "--jobs", "1", "--nameplate", c["nameplate"]])
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as work:
         try:
-            row, _ = proof.run_case(c["case"], c["seed"], opts, work)
+            row, case_out = proof.run_case(c["case"], c["seed"], opts, work)
         except Exception as e:          # a crash is a finding: recorded as such, the survey goes on
             return {"family": c["case"], "nameplate": c["nameplate"], "seed": c["seed"], "loop": c["loop"],
                     "crash": f"{type(e).__name__}: {e}", "time_s": time.perf_counter() - t0}
+        if keep:
+            dest = Path(keep) / f"{c['case'].replace('@', '_s')}_{c['nameplate']}_{c['seed']}"
+            dest.mkdir(parents=True, exist_ok=True)
+            for name in KEEP_FILES:
+                if (Path(case_out) / name).exists():
+                    shutil.copy2(Path(case_out) / name, dest / name)
     out = {k: row.get(k) for k in KEEP}
     out["loop"] = c["loop"]
     out["case"] = c["case"]
@@ -112,7 +129,8 @@ def ok(r) -> bool:
 
 
 def counted(r) -> bool:
-    return kind(r) != "catalogue" or "crash" in r or (r.get("effect_size") or 0.0) >= DETECTABLE
+    """Clean cases always; effects (catalogue or outside it) when detectable: >= DETECTABLE x the noise."""
+    return kind(r) == "clean" or "crash" in r or (r.get("effect_size") or 0.0) >= DETECTABLE
 
 
 def seen(r) -> bool:
@@ -131,7 +149,8 @@ def match(r) -> bool:
 GROUPS = (("detectable catalogue effects named first (>= 90 %)", "catalogue", counted, ok),
           ("... of them, >= 3x in the residual the tool scores (closed loop: observer footprint)", "catalogue",
            seen, ok),
-          ("outside the catalogue: no catalogue effect, period within 10 % (>= 90 %)", "outside", counted, ok),
+          ("outside the catalogue (detectable): no catalogue effect, period within 10 % (>= 90 %)", "outside", counted,
+           ok),
           ("clean: no effect claimed (>= 95 %)", "clean", counted, ok),
           ("clean: verdict match (>= 90 %)", "clean", counted, match))
 
@@ -212,6 +231,8 @@ def main(argv=None) -> int:
     ap.add_argument("--same-as", metavar="ROWS", help="only the cases that ROWS holds (an after-run of a before-run), "
                     "in ROWS's order")
     ap.add_argument("--limit", type=int, default=None, help="at most this many cases")
+    ap.add_argument("--keep", metavar="DIR", help="keep every case's report.json and report.md under DIR "
+                    "(default: removed with the case's temporary folder)")
     ap.add_argument("--summary", nargs="+", metavar="ROWS", help="print the tables of these row files and exit")
     a = ap.parse_args(argv)
     if a.summary:
@@ -238,13 +259,13 @@ def main(argv=None) -> int:
     bar = tqdm(total=len(todo), unit="case")
     if a.jobs == 1:
         for c in todo:
-            r = run_one(c, a.duration)
+            r = run_one(c, a.duration, a.keep)
             append(out, r)
             bar.set_description(f"{c['case']} {c['nameplate']} {c['loop']}: {r.get('effects', r.get('crash'))}")
             bar.update(1)
     else:
         with ProcessPoolExecutor(max_workers=a.jobs) as ex:
-            futs = {ex.submit(run_one, c, a.duration): c for c in todo}
+            futs = {ex.submit(run_one, c, a.duration, a.keep): c for c in todo}
             for f in as_completed(futs):
                 c, r = futs[f], f.result()
                 append(out, r)
