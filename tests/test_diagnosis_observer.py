@@ -91,3 +91,24 @@ def test_concealed_effect_in_closed_loop_is_still_named_with_the_observer_residu
     assert rep["loop"]["kc.csv"] == "closed" and rep["residual"]["kc.csv"] == "observer"   # the default PID
     assert [e["id"] for e in rep["effects"]][:1] == ["torque_constant_error"], rep["effects"]
     assert rep["verdict"] == "explained", (rep["verdict"], rep["rms_after_deg"], rep["noise_floor_deg"])
+
+
+def test_proof_footprint_of_a_closed_loop_effect_as_the_observer_sees_it():
+    """proof_truth.effect_footprint(residual="observer"): what the closed-loop residual can see of a concealed
+    effect (the proof's effect_size_observer). The replay of a closed loop's voltage overstates it (the replayed
+    plate leaves the path the controller held it on), so the observer's footprint is the smaller one; a
+    sensor effect (no plate effect to take out) has none."""
+    from etb_gym.components import effects as fx
+    from etb_gym.diagnose.locate import moving_rms
+    from etb_gym.diagnose.proof_truth import effect_footprint
+    effects = [fx.TorqueConstantError(delta_Nm_per_A=0.01)]
+    truth = truth_3b(5, effects)
+    rec = make_recording(truth, np.random.default_rng(105), duration_s=2.0, closed=True, noise_deg=0.01,
+                         name="kc.csv")
+    size = {}
+    for residual in ("replay", "observer"):
+        a, b = effect_footprint(truth, rec, effects, {}, residual=residual)
+        assert a.shape == b.shape == rec.angle_deg.shape and np.all(np.isfinite(a)) and np.all(np.isfinite(b))
+        size[residual] = float(np.max(moving_rms(a - b, 100)))
+    assert 0.0 < size["observer"] < size["replay"], size
+    assert effect_footprint(truth, rec, [], {}, residual="observer") is None

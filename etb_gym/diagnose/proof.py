@@ -120,7 +120,8 @@ def record_and_diagnose(name, seed, rng, truth, sensor_kw, args, workdir):
            "verdict": rep["verdict"], "effects": [e["id"] for e in rep["effects"]],
            "shaped": [e["id"] for e in rep["effects"] if "shape" in e], "outside": rep.get("outside_catalogue"),
            "rms_before": rep["rms_before_deg"],
-           "rms_after": rep["rms_after_deg"], "noise_floor": rep["noise_floor_deg"], "time_s": elapsed}
+           "rms_after": rep["rms_after_deg"], "noise_floor": rep["noise_floor_deg"], "time_s": elapsed,
+           "cpu_s": rep.get("cpu_s")}
     q = getattr(sensor_kw.get("reading"), "resolution_deg", None) or sensor_kw.get("resolution_deg", 90.0 / 4096)
     row["true_noise"] = math.sqrt(noise ** 2 + q ** 2 / 12.0)        # what the truth added (incl. quantization)
     return rec, held, res, row, out
@@ -178,6 +179,11 @@ def run_case(family, seed, args, workdir):
         row["named"] = (not ids) if fam == "clean" else (bool(ids) and ids[0] == fam)
     if fam != "clean":                      # where the concealed effect acts: truth with vs without it (deg)
         score_windows(row, rec, rep, *effect_footprint(truth, rec, effects, sensor_kw))
+        if row["closed"]:                   # ... and what of it the closed-loop residual (observer) can see
+            fp = effect_footprint(truth, rec, effects, sensor_kw, residual="observer")
+            if fp is not None:
+                row["effect_size_observer"] = float(np.max(moving_rms(fp[0] - fp[1], int(0.1 / rec.dt_s)))) \
+                    / row["true_noise"]
     if pname and row["named"] and fam not in OUTSIDE:
         row.update(score_param(rep, fam, pname, ptrue) or {})
     score_heldout(row, res, held)

@@ -297,15 +297,19 @@ def sensor_model(sensor_kw, dt_s) -> SensorModel:
                        resolution_deg=sensor_kw.get("resolution_deg", 0.0))
 
 
-def effect_footprint(truth, rec, effects, sensor_kw):
+def effect_footprint(truth, rec, effects, sensor_kw, residual="replay"):
     """(reading with the concealed effect, reading without it) along ``rec`` [deg]. Plate effects: the
     segment-wise simulation of the truth with and without the effect (re-initialized where the tool
     re-initializes, so a stick-slip event placed differently does not count for the rest of the recording).
-    Sensor effects: the true angle (the truth replayed on the recorded voltage) read with and without them."""
+    Sensor effects: the true angle (the truth replayed on the recorded voltage) read with and without them.
+    ``residual="observer"`` (plate effects only): the one-step predictions of the closed-loop residual
+    (observer.py) instead of the replay, i.e. what the diagnosis can see of the effect on a closed loop."""
     if effects:
-        data = prepare([rec], 12.0)
+        data = prepare([rec], 12.0, residual=residual)
         sm = SensorModel()
         return simulate(truth, sm, data)[0][0], simulate(truth.replace(effects=()), sm, data)[0][0]
+    if residual != "replay":
+        return None
     duty = rec.voltage_V / truth.supply.voltage_V
     phi = truth.simulate(duty=duty[:-1], angle_deg=math.degrees(truth.limp_home_rad)).angle_deg
     shape = sensor_kw.get("reading")
