@@ -216,45 +216,42 @@ def control_step_dx(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux, 
 {c_init("x", "P")}    r = rates(x, P)
     n = substeps_for(dt, n_sub)
     hmax = dt / n
-    if not switching:
-        u = duty * supply_V
-        h = dt / n
-        hp = 0.0
-        for k in range(n):
-            {hp_set}step(t0 + k * h, h, hp, r, x, u, P, dx, aux{c_args()})
-        relax(t0 + dt, hp, x, u, P{c_args()})
-    else:
+    n_per = 1
+    if switching:
         n_per = int(round(dt * f_pwm))
         if n_per < 1:
             n_per = 1
-        Tp = dt / n_per
-        a = abs(duty)
-        von = supply_V if duty >= 0.0 else -supply_V
-        t = t0
-        hp = 0.0          # the half substep of flow A still owed by the previous substep
-        u = 0.0
-        for j in range(n_per):
+    Tp = dt / n_per
+    a = abs(duty)
+    von = supply_V if duty >= 0.0 else -supply_V
+    t = t0
+    hp = 0.0          # the half substep of flow A still owed by the previous substep
+    u = 0.0
+    # One loop over the intervals of constant voltage, so that step (inlined) appears once in the compiled
+    # function: without switching one interval of n substeps at duty * supply_V; with switching, the on and the
+    # off interval of each of the n_per PWM periods, each cut into the fewest substeps not longer than dt / n.
+    for j in range(2 * n_per):
+        if switching:
             ton = a * Tp
-            toff = Tp - ton
-            if ton > 0.0:
-                m = int(math.ceil(ton / hmax - 1e-9))
-                if m < 1:  # an interval far shorter than a substep (duty a hair from 0 or +-1)
-                    m = 1
-                h = ton / m
-                u = von
-                for k in range(m):
-                    {hp_set}step(t, h, hp, r, x, u, P, dx, aux{c_args()})
-                    t += h
-            if toff > 0.0:
-                m = int(math.ceil(toff / hmax - 1e-9))
-                if m < 1:  # an interval far shorter than a substep (duty a hair from 0 or +-1)
-                    m = 1
-                h = toff / m
-                u = 0.0
-                for k in range(m):
-                    {hp_set}step(t, h, hp, r, x, u, P, dx, aux{c_args()})
-                    t += h
-        relax(t, hp, x, u, P{c_args()})
+            span = ton if j % 2 == 0 else Tp - ton
+            if not span > 0.0:
+                continue
+            m = int(math.ceil(span / hmax - 1e-9))
+            if m < 1:  # an interval far shorter than a substep (duty a hair from 0 or +-1)
+                m = 1
+            h = span / m
+            u = von if j % 2 == 0 else 0.0
+        else:
+            if j > 0:
+                break
+            m = n
+            h = dt / n
+            u = duty * supply_V
+        for k in range(m):
+            tk = t if switching else t0 + k * h
+            {hp_set}step(tk, h, hp, r, x, u, P, dx, aux{c_args()})
+            t += h
+    relax(t if switching else t0 + dt, hp, x, u, P{c_args()})
     return physical(x, supply_V, P)
 
 
@@ -293,12 +290,16 @@ def simulate(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, X, A):
     aux = np.zeros(N_AUX)
     dx = np.empty(N_SCRATCH)
     rhs(t0, x, duty[0] * supply_V[0], P, dx, aux)
-    X[0, :] = x
-    A[0, :] = aux
+    for j in range(N_STATES):
+        X[0, j] = x[j]
+    for j in range(N_AUX):
+        A[0, j] = aux[j]
     for k in range(duty.shape[0]):
         ok = control_step_dx(x, duty[k], supply_V[k], P, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
-        X[k + 1, :] = x
-        A[k + 1, :] = aux
+        for j in range(N_STATES):
+            X[k + 1, j] = x[j]
+        for j in range(N_AUX):
+            A[k + 1, j] = aux[j]
         if not ok:
             return k
     return duty.shape[0]
@@ -312,14 +313,18 @@ def observe(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, y, gain, lag
     aux = np.zeros(N_AUX)
     dx = np.empty(N_SCRATCH)
     rhs(t0, x, duty[0] * supply_V[0], P, dx, aux)
-    X[0, :] = x
-    A[0, :] = aux
+    for j in range(N_STATES):
+        X[0, j] = x[j]
+    for j in range(N_AUX):
+        A[0, j] = aux[j]
     m = int(lag)
     f = lag - m
     for k in range(duty.shape[0]):
         ok = control_step_dx(x, duty[k], supply_V[k], P, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
-        X[k + 1, :] = x
-        A[k + 1, :] = aux
+        for j in range(N_STATES):
+            X[k + 1, j] = x[j]
+        for j in range(N_AUX):
+            A[k + 1, j] = aux[j]
         if not ok:
             return k
         j = k + 1 - m
