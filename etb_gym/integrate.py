@@ -279,7 +279,7 @@ def substeps_for(dt, n_sub):
 def control_step(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux):
     """One control period. Returns physical(x): the state is finite and plausible afterwards."""
     dx = np.empty(N_SCRATCH)
-    return control_step_dx(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux, dx)
+    return control_step_dx(x, duty, supply_V, borrow(P, True), t0, dt, n_sub, switching, f_pwm, aux, dx)
 
 
 def simulate(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, X, A):
@@ -289,13 +289,14 @@ def simulate(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, X, A):
     x = x0.copy()
     aux = np.zeros(N_AUX)
     dx = np.empty(N_SCRATCH)
+    Pr = borrow(P, True)    # read-only type: control_step_dx compiles once, whatever the caller's P (borrow)
     rhs(t0, x, duty[0] * supply_V[0], P, dx, aux)
     for j in range(N_STATES):
         X[0, j] = x[j]
     for j in range(N_AUX):
         A[0, j] = aux[j]
     for k in range(duty.shape[0]):
-        ok = control_step_dx(x, duty[k], supply_V[k], P, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
+        ok = control_step_dx(x, duty[k], supply_V[k], Pr, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
         for j in range(N_STATES):
             X[k + 1, j] = x[j]
         for j in range(N_AUX):
@@ -312,6 +313,7 @@ def observe(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, y, gain, lag
     x = x0.copy()
     aux = np.zeros(N_AUX)
     dx = np.empty(N_SCRATCH)
+    Pr = borrow(P, True)    # read-only type: control_step_dx compiles once, whatever the caller's P (borrow)
     rhs(t0, x, duty[0] * supply_V[0], P, dx, aux)
     for j in range(N_STATES):
         X[0, j] = x[j]
@@ -320,7 +322,7 @@ def observe(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, y, gain, lag
     m = int(lag)
     f = lag - m
     for k in range(duty.shape[0]):
-        ok = control_step_dx(x, duty[k], supply_V[k], P, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
+        ok = control_step_dx(x, duty[k], supply_V[k], Pr, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
         for j in range(N_STATES):
             X[k + 1, j] = x[j]
         for j in range(N_AUX):
@@ -368,7 +370,7 @@ def batch_step(X, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, AUX, OK):
     n = X.shape[0]
     DX = np.empty((n, N_SCRATCH))
     Xb = borrow(X)
-    Pb = borrow(P)
+    Pb = borrow(P, True)
     Ab = borrow(AUX)
     if switching:
         for b in prange(n):
@@ -390,14 +392,14 @@ def batch_step_serial(X, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, AUX
     n = X.shape[0]
     DX = np.empty((n, N_SCRATCH))
     Xb = borrow(X)
-    Pb = borrow(P)
+    Pb = borrow(P, True)
     Ab = borrow(AUX)
-    b0 = 0
+    ng = 0
     if not switching:
-        while b0 + GROUP <= n:
-            control_step_group(Xb, duty, supply_V, Pb, t0, Ab, DX, OK, b0, dt, n_sub)
-            b0 += GROUP
-    for b in range(b0, n):
+        ng = n // GROUP
+        for j in range(ng):     # j * GROUP, not a counter from 0: a literal 0 would compile the group twice
+            control_step_group(Xb, duty, supply_V, Pb, t0, Ab, DX, OK, j * GROUP, dt, n_sub)
+    for b in range(ng * GROUP, n):
         OK[b] = control_step_dx(Xb[b], duty[b], supply_V[b], Pb[b], t0[b], dt, n_sub, switching, f_pwm,
                                 Ab[b], DX[b])
 '''
