@@ -221,45 +221,42 @@ def control_step_dx(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux, 
 {c_init("x", "P")}    r = rates(x, P)
     n = substeps_for(dt, n_sub)
     hmax = dt / n
-    if not switching:
-        u = duty * supply_V
-        h = dt / n
-        hp = 0.0
-        for k in range(n):
-            {hp_set}step(t0 + k * h, h, hp, r, x, u, P, dx, aux{c_args()})
-        relax(t0 + dt, hp, x, u, P{c_args()})
-    else:
+    n_per = 1
+    if switching:
         n_per = int(round(dt * f_pwm))
         if n_per < 1:
             n_per = 1
-        Tp = dt / n_per
-        a = abs(duty)
-        von = supply_V if duty >= 0.0 else -supply_V
-        t = t0
-        hp = 0.0          # the half substep of flow A still owed by the previous substep
-        u = 0.0
-        for j in range(n_per):
+    Tp = dt / n_per
+    a = abs(duty)
+    von = supply_V if duty >= 0.0 else -supply_V
+    t = t0
+    hp = 0.0          # the half substep of flow A still owed by the previous substep
+    u = 0.0
+    # One loop over the intervals of constant voltage, so that step (inlined) appears once in the compiled
+    # function: without switching one interval of n substeps at duty * supply_V; with switching, the on and the
+    # off interval of each of the n_per PWM periods, each cut into the fewest substeps not longer than dt / n.
+    for j in range(2 * n_per):
+        if switching:
             ton = a * Tp
-            toff = Tp - ton
-            if ton > 0.0:
-                m = int(math.ceil(ton / hmax - 1e-9))
-                if m < 1:  # an interval far shorter than a substep (duty a hair from 0 or +-1)
-                    m = 1
-                h = ton / m
-                u = von
-                for k in range(m):
-                    {hp_set}step(t, h, hp, r, x, u, P, dx, aux{c_args()})
-                    t += h
-            if toff > 0.0:
-                m = int(math.ceil(toff / hmax - 1e-9))
-                if m < 1:  # an interval far shorter than a substep (duty a hair from 0 or +-1)
-                    m = 1
-                h = toff / m
-                u = 0.0
-                for k in range(m):
-                    {hp_set}step(t, h, hp, r, x, u, P, dx, aux{c_args()})
-                    t += h
-        relax(t, hp, x, u, P{c_args()})
+            span = ton if j % 2 == 0 else Tp - ton
+            if not span > 0.0:
+                continue
+            m = int(math.ceil(span / hmax - 1e-9))
+            if m < 1:  # an interval far shorter than a substep (duty a hair from 0 or +-1)
+                m = 1
+            h = span / m
+            u = von if j % 2 == 0 else 0.0
+        else:
+            if j > 0:
+                break
+            m = n
+            h = dt / n
+            u = duty * supply_V
+        for k in range(m):
+            tk = t if switching else t0 + k * h
+            {hp_set}step(tk, h, hp, r, x, u, P, dx, aux{c_args()})
+            t += h
+    relax(t if switching else t0 + dt, hp, x, u, P{c_args()})
     return physical(x, supply_V, P)
 
 
@@ -287,7 +284,7 @@ def substeps_for(dt, n_sub):
 def control_step(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux):
     """One control period. Returns physical(x): the state is finite and plausible afterwards."""
     dx = np.empty(N_SCRATCH)
-    return control_step_dx(x, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, aux, dx)
+    return control_step_dx(x, duty, supply_V, borrow(P, True), t0, dt, n_sub, switching, f_pwm, aux, dx)
 
 
 def simulate(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, X, A):
@@ -297,13 +294,18 @@ def simulate(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, X, A):
     x = x0.copy()
     aux = np.zeros(N_AUX)
     dx = np.empty(N_SCRATCH)
+    Pr = borrow(P, True)    # read-only type: control_step_dx compiles once, whatever the caller's P (borrow)
     rhs(t0, x, duty[0] * supply_V[0], P, dx, aux)
-    X[0, :] = x
-    A[0, :] = aux
+    for j in range(N_STATES):
+        X[0, j] = x[j]
+    for j in range(N_AUX):
+        A[0, j] = aux[j]
     for k in range(duty.shape[0]):
-        ok = control_step_dx(x, duty[k], supply_V[k], P, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
-        X[k + 1, :] = x
-        A[k + 1, :] = aux
+        ok = control_step_dx(x, duty[k], supply_V[k], Pr, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
+        for j in range(N_STATES):
+            X[k + 1, j] = x[j]
+        for j in range(N_AUX):
+            A[k + 1, j] = aux[j]
         if not ok:
             return k
     return duty.shape[0]
@@ -316,15 +318,20 @@ def observe(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, y, gain, lag
     x = x0.copy()
     aux = np.zeros(N_AUX)
     dx = np.empty(N_SCRATCH)
+    Pr = borrow(P, True)    # read-only type: control_step_dx compiles once, whatever the caller's P (borrow)
     rhs(t0, x, duty[0] * supply_V[0], P, dx, aux)
-    X[0, :] = x
-    A[0, :] = aux
+    for j in range(N_STATES):
+        X[0, j] = x[j]
+    for j in range(N_AUX):
+        A[0, j] = aux[j]
     m = int(lag)
     f = lag - m
     for k in range(duty.shape[0]):
-        ok = control_step_dx(x, duty[k], supply_V[k], P, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
-        X[k + 1, :] = x
-        A[k + 1, :] = aux
+        ok = control_step_dx(x, duty[k], supply_V[k], Pr, t0 + k * dt, dt, n_sub, switching, f_pwm, aux, dx)
+        for j in range(N_STATES):
+            X[k + 1, j] = x[j]
+        for j in range(N_AUX):
+            A[k + 1, j] = aux[j]
         if not ok:
             return k
         j = k + 1 - m
@@ -368,7 +375,7 @@ def batch_step(X, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, AUX, OK):
     n = X.shape[0]
     DX = np.empty((n, N_SCRATCH))
     Xb = borrow(X)
-    Pb = borrow(P)
+    Pb = borrow(P, True)
     Ab = borrow(AUX)
     if switching:
         for b in prange(n):
@@ -390,14 +397,14 @@ def batch_step_serial(X, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, AUX
     n = X.shape[0]
     DX = np.empty((n, N_SCRATCH))
     Xb = borrow(X)
-    Pb = borrow(P)
+    Pb = borrow(P, True)
     Ab = borrow(AUX)
-    b0 = 0
+    ng = 0
     if not switching:
-        while b0 + GROUP <= n:
-            control_step_group(Xb, duty, supply_V, Pb, t0, Ab, DX, OK, b0, dt, n_sub)
-            b0 += GROUP
-    for b in range(b0, n):
+        ng = n // GROUP
+        for j in range(ng):     # j * GROUP, not a counter from 0: a literal 0 would compile the group twice
+            control_step_group(Xb, duty, supply_V, Pb, t0, Ab, DX, OK, j * GROUP, dt, n_sub)
+    for b in range(ng * GROUP, n):
         OK[b] = control_step_dx(Xb[b], duty[b], supply_V[b], Pb[b], t0[b], dt, n_sub, switching, f_pwm,
                                 Ab[b], DX[b])
 '''

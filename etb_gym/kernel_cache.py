@@ -55,7 +55,7 @@ def importable(fn) -> bool:
         and "<locals>" not in f.__qualname__
 
 
-def identity(a):
+def identity(a, *readonly):
     return a
 
 
@@ -65,27 +65,34 @@ if HAVE_NUMBA:
     from numba.np.arrayobj import make_array as _make_array
 
     @_intrinsic
-    def borrow(typingctx, arr):
-        """A view of array argument ``arr`` without a reference count (meminfo NULL).
+    def borrow(typingctx, arr, *readonly):
+        """A view of array argument ``arr`` without a reference count (meminfo NULL); ``borrow(arr, True)`` types
+        the view read-only.
 
         Slicing a numba array increments and decrements its reference count atomically; the stepper
         slices x, P and dx for every kernel call of every substep, and in the parallel batch step all
         rows share one count, so the threads fought over one cache line. Views of a borrowed array
         skip the count. Only ever borrow a *function argument* (its caller keeps it alive), never a
-        local temporary."""
+        local temporary.
+
+        Read-only: numba compiles a function once per argument *type*, and a read-only array (the env's shared
+        parameter vector) is another type than a writable one. The generated entry points hand P to
+        control_step_dx as ``borrow(P, True)``, so control_step_dx, resolve and physical -- most of a
+        composition's compile time -- compile once per composition, not once per caller's kind of P."""
         if not isinstance(arr, _nb.types.Array):
             return None
+        out = arr.copy(readonly=True) if readonly else arr
 
         def codegen(context, builder, sig, args):
             src = _make_array(arr)(context, builder, value=args[0])
-            dst = _make_array(arr)(context, builder)
+            dst = _make_array(out)(context, builder)
             for f in ("nitems", "itemsize", "data", "shape", "strides"):
                 setattr(dst, f, getattr(src, f))
             dst.meminfo = context.get_constant_null(_nb.types.MemInfoPointer(arr.dtype))
             dst.parent = context.get_constant_null(_nb.types.pyobject)
             return dst._getvalue()
 
-        return arr(arr), codegen
+        return out(arr, _nb.types.StarArgTuple(readonly)), codegen
 else:  # pragma: no cover
     borrow = identity
 

@@ -1,10 +1,11 @@
 """Summarise the numba compile-time log the test suite writes with ETB_GYM_COMPILE_LOG=path (tests/conftest.py).
 
     ETB_GYM_CACHE=/tmp/cold ETB_GYM_COMPILE_LOG=/tmp/cold/compile.log .venv/bin/python -m pytest -q -n 2
-    .venv/bin/python scripts/compile_log.py /tmp/cold/compile.log.*
+    .venv/bin/python scripts/compile_log.py /tmp/cold/compile.log.* --cache /tmp/cold
 
 Prints the compile seconds (wall, or with --cpu the compiling thread's CPU) per test (top-level compiles only: a callee compiled inside its caller is part of the
-caller's time), per function and the number of distinct generated steppers (etb_gym_kernels modules) compiled.
+caller's time), per function and the number of distinct generated steppers (etb_gym_kernels modules) compiled;
+with --cache (the run's ETB_GYM_CACHE) each stepper is named by its plant composition.
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ def main(argv=None) -> int:
     ap.add_argument("logs", nargs="+", help="the per-worker log files (path.gw0, path.gw1, ...)")
     ap.add_argument("--top", type=int, default=25, help="rows per table (default 25)")
     ap.add_argument("--cpu", action="store_true", help="sum the compiling thread's CPU seconds, not wall seconds")
+    ap.add_argument("--cache", default=None, help="the run's ETB_GYM_CACHE: name each stepper by its composition")
     a = ap.parse_args(argv)
     per_test, per_fn, per_fn_n, kernels = (collections.Counter(), collections.Counter(), collections.Counter(),
                                            collections.Counter())
@@ -54,8 +56,19 @@ def main(argv=None) -> int:
         print(f"  {s:7.1f} s  ({per_fn_n[t]:3d})  {t}")
     print("\nper generated stepper:")
     for t, s in kernels.most_common(a.top):
-        print(f"  {s:7.1f} s  {t}")
+        print(f"  {s:7.1f} s  {t}  {composition(a.cache, t)}")
     return 0
+
+
+def composition(cache, module: str) -> str:
+    """The components of generated stepper ``module`` (k_<digest>), from its file's first line in ``cache``."""
+    if not cache:
+        return ""
+    try:
+        with open(f"{cache}/etb_kernel_{module[2:]}.py") as f:
+            return f.readline().split("for: ", 1)[-1].strip()
+    except OSError:
+        return "(not in the cache folder)"
 
 
 if __name__ == "__main__":
