@@ -396,6 +396,10 @@ class PTOSController(CascadeController):
     not brake the coil below the springs plus ``follow_current_floor`` of the friction (:meth:`follow_floor_duty`).
     The observer's speed gain (``observer_speed_gain``) falls as 1/RMS of the resting innovation beyond
     ``innovation_noise_deg`` (``observer_noise_schedule``): the sensor noise measured at rest.
+    While the reference moves at a steady rate (ramps, pedal moves) the speed gain is
+    max(``observer_speed_gain`` q, ``observer_tracking_speed_gain`` q^2), q that schedule: following a slow ramp
+    the plate's speed swings with the friction (more process noise than at rest), so a Kalman-style gain is
+    higher there, and falls with the measurement noise's variance (the noisy sensor keeps the resting gain).
 
     The predictor's observer has a rest check (``rest_band_deg``, ``rest_check_speed_rad_s``): when the sensed
     angle has stayed within the band for two periods, an observer speed above the check speed is replaced by
