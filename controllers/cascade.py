@@ -396,6 +396,10 @@ class PTOSController(CascadeController):
     not brake the coil below the springs plus ``follow_current_floor`` of the friction (:meth:`follow_floor_duty`).
     The observer's speed gain (``observer_speed_gain``) falls as 1/RMS of the resting innovation beyond
     ``innovation_noise_deg`` (``observer_noise_schedule``): the sensor noise measured at rest.
+    While the reference moves at a steady rate (ramps, pedal moves) the speed gain is
+    max(``observer_speed_gain`` q, ``observer_tracking_speed_gain`` q^2), q that schedule: following a slow ramp
+    the plate's speed swings with the friction (more process noise than at rest), so a Kalman-style gain is
+    higher there, and falls with the measurement noise's variance (the noisy sensor keeps the resting gain).
 
     The predictor's observer has a rest check (``rest_band_deg``, ``rest_check_speed_rad_s``): when the sensed
     angle has stayed within the band for two periods, an observer speed above the check speed is replaced by
@@ -417,6 +421,7 @@ class PTOSController(CascadeController):
                  self_test_ramp_A_per_s: float = 100.0, hold_band: float = 0.7,
                  reference_feedforward: float = 1.0, reference_preview_periods: float = 1.0,
                  observer_angle_gain: float = 0.5, observer_speed_gain: float = 0.25,
+                 observer_tracking_speed_gain: float = 0.55,
                  observer_noise_schedule: bool = True, follow_current_floor: float = 0.8,
                  follow_headroom: float = 0.2, **kw):
         own = type(self).__name__
@@ -428,6 +433,8 @@ class PTOSController(CascadeController):
             raise ValueError(f"{own}: observer_noise_schedule = {observer_noise_schedule!r} is invalid: expected True "
                              "or False")
         self.speed_schedule = observer_noise_schedule
+        self.tracking_speed_gain = check_gain(own, "observer_tracking_speed_gain", observer_tracking_speed_gain,
+                                              non_negative=True, upper=1.0001)
         self.follow_floor = check_gain(own, "follow_current_floor", follow_current_floor, non_negative=True,
                                        upper=1.0001)
         self.follow_headroom = check_gain(own, "follow_headroom", follow_headroom, non_negative=True, upper=1.0001)
@@ -511,6 +518,8 @@ class PTOSController(CascadeController):
         # noisy sensor the full gain turns the noise into speed errors the landing law brakes and drives on)
         q = min(1.0, self.innovation_ref / math.sqrt(max(self.innovation_ms, 1e-30))) if self.speed_schedule else 1.0
         self.speed_gain_now = self.observer_speed_gain * q
+        if self.r_rate != 0.0:
+            self.speed_gain_now = max(self.speed_gain_now, self.tracking_speed_gain * q * q)
         p.observe(y, meas.current_A, meas.last_duty, self.V_now, self.observer_angle_gain, self.speed_gain_now)
         self.observed_periods += 1
         d_test = None

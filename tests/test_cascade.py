@@ -348,20 +348,23 @@ def test_ptos_ramp_tracked_without_lag_at_low_battery_and_hot_coil():
     reference at its end: followed where the env showed it (reference_preview_periods=0) the plate trails by one
     period of the ramp, 0.14 deg (nominal RMS 0.140); followed where it will be, the mid-ramp mean error is ~0
     (RMS 0.063). At 125 C the end of the ramp needs 11.5 of the 12 V: without the follow floor the landing law
-    stopped the plate, which then stuck (0.106); with it 0.077. 9 V: 0.111 (the ramp bound of
-    scripts/ramp_bound.py: 0.049 nominal, 0.067 at 125 C, 0.074 at 9 V)."""
+    stopped the plate, which then stuck (0.106); with it 0.076. 9 V: 0.071 (the ramp bound of
+    scripts/ramp_bound.py: 0.049 nominal, 0.067 at 125 C, 0.074 at 9 V). The observer's speed gain while the
+    reference moves (observer_tracking_speed_gain 0.55, 0 = the resting 0.25): nominal 0.049 against 0.063."""
     from etb_gym.benchmark import SCENARIOS, Job, metrics, simulate
 
     rms, lag = {}, {}
     late = ("nominal", (("reference_preview_periods", 0.0),))
-    for v, kw in (("nominal", ()), ("supply_9V", ()), ("coil_125C", ()), late):
+    rest_gain = ("nominal", (("observer_tracking_speed_gain", 0.0),))
+    for v, kw in (("nominal", ()), ("supply_9V", ()), ("coil_125C", ()), late, rest_gain):
         tr, _ = simulate(Job("ETB-3B-v0", "ptos", "ramp_10_80", v, 0, kw))
         rms[v, kw] = metrics(tr, SCENARIOS["ramp_10_80"])["rms_error_deg"]
         e = tr["reference_deg"] - tr["angle_deg"]
         lag[v, kw] = float(np.mean(e[(tr["t_s"] > 0.35) & (tr["t_s"] < 0.75)]))
     assert lag[late] > 0.1 and abs(lag["nominal", ()]) < 0.03, lag
     assert rms["nominal", ()] < 0.09 and rms["nominal", ()] < 0.7 * rms[late], rms
-    assert rms["supply_9V", ()] < 0.13 and rms["coil_125C", ()] < 0.09, rms
+    assert rms["supply_9V", ()] < 0.09 and rms["coil_125C", ()] < 0.09, rms
+    assert rms["nominal", ()] < 0.85 * rms[rest_gain], rms
 
 
 def test_ptos_follow_floor_keeps_the_coil_carrying_the_load_when_headroom_is_low():
@@ -406,3 +409,33 @@ def test_ptos_observer_speed_gain_follows_the_measured_sensor_noise():
         make_controller("ptos", observer_noise_schedule="yes")
     with pytest.raises(ValueError, match="observer_speed_gain"):
         make_controller("ptos", observer_speed_gain=2.0)
+
+
+def test_ptos_observer_tracking_speed_gain_only_while_the_reference_moves():
+    """While the reference moves at a steady rate the observer's speed gain is max(0.25 q, 0.55 q^2) (q: the
+    noise schedule): 0.55 on the nominal sensor, the resting 0.25 q on the 0.05 deg sensor (q ~ 0.4: the
+    tracking term falls as 1/variance); at rest and on steps the resting gain. The option is checked."""
+    from etb_gym.bench_scenarios import VARIANTS
+
+    for variant in ("nominal", "sensor_noise_high"):
+        c = make_controller("ptos")
+        env = gym.make("ETB-3B-v0", observe_current=True, observe_supply=True, episode_s=0.26,
+                       reference={"name": "ramp", "start_deg": 40.0, "end_deg": 45.0, "at_s": 0.2, "duration_s": 0.05},
+                       **VARIANTS[variant].env_kwargs("ETB-3B-v0"))
+        obs, _ = env.reset(seed=0, options={"angle_deg": 40.0})
+        c.reset(0)
+        gains = []
+        for _ in range(230):
+            d = c.act(obs)
+            gains.append((c.speed_gain_now, c.r_rate))
+            obs, *_ = env.step(np.array([d], np.float32))
+        resting, moving = gains[190], gains[225]
+        assert resting[1] == 0.0 and moving[1] > 1.0, (resting, moving)
+        q = resting[0] / c.observer_speed_gain
+        if variant == "nominal":
+            assert q == 1.0 and moving[0] == c.tracking_speed_gain == 0.55
+        else:
+            # not 0.55 q (~0.2): the resting schedule's 0.25 q
+            assert 0.2 < q < 0.6 and moving[0] < 0.6 * c.observer_speed_gain, (q, moving)
+    with pytest.raises(ValueError, match="observer_tracking_speed_gain"):
+        make_controller("ptos", observer_tracking_speed_gain=-0.1)
