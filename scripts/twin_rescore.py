@@ -46,6 +46,20 @@ def rms_over(plant, sensor, data, noise) -> float:
     return math.sqrt(float(np.mean(angle_residuals_deg(simulate(plant, sensor, data), data)[0] ** 2))) / noise
 
 
+def heldout_bands(plant, sensor, data, noise, edges_deg=(0.0, 6.0, 12.0, 30.0, 90.0)) -> dict:
+    """Where the held-out residual sits: per band of the recorded angle, the share of the samples and the RMS
+    residual over the noise."""
+    r = angle_residuals_deg(simulate(plant, sensor, data), data)[0]
+    ang = data.recs[0].rec.angle_deg
+    out = {}
+    for lo, hi in zip(edges_deg[:-1], edges_deg[1:]):
+        m = (ang >= lo) & (ang < hi) if hi < edges_deg[-1] else ang >= lo
+        if m.any():
+            out[f"{lo:g}-{hi:g}"] = {"share": round(float(m.mean()), 3),
+                                     "rms": round(math.sqrt(float(np.mean(r[m] ** 2))) / noise, 2)}
+    return out
+
+
 def static_torque_Nm(plant, angles_deg) -> np.ndarray:
     """The plant's torque at rest with no current (spring and every effect, states at 0), over ``angles_deg``."""
     comps = [c for c in (plant.spring,) + tuple(plant.effects) if c is not None]
@@ -123,6 +137,7 @@ def named_case(case: str, duration: float, work: Path, static=None) -> dict:
         row.update(kept=ref.kept, cv_formula=ref.heldout_formula, cv_map=ref.heldout_map,
                    fit_map=rms_over(pm, sm, data, noise), ho_map=rms_over(pm.replace(substeps=40), sm, hd, noise))
         twin = pm if ref.kept else pf
+        row["ho_bands"] = heldout_bands(twin.replace(substeps=40), sm if ref.kept else sf, hd, noise)
         row["ho_twin"] = row["ho_map"] if ref.kept else row["ho_formula"]
         if twin.spring is not None and truth.spring is not None:
             row["spring_over_truth"] = {"preload": twin.spring.params.preload_Nm / truth.spring.params.preload_Nm,

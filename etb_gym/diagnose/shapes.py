@@ -5,11 +5,13 @@ and the data (the angle knots span the plant's own stops, the speed and current 
 recordings visit). Its knot values are the fitted coefficients c, found by output error together with the
 calibrated nominal parameters (the model's other parameters stay at their fitted values):
 
-    minimize  |r(x)|^2 + lambda |D c|^2        r: the diagnosis's normalized residual (fit.make_fun)
-                                               D: second differences of the knot values (roughness)
+    minimize  |r(x)|^2 + lambda |D c|^2 + |x_nom / sigma|^2
+                                  r: the diagnosis's normalized residual (fit.make_fun)
+                                  D: second differences of the knot values (roughness)
+                                  x_nom: the nominal parameters, 0 at the nameplate (sigma: NOMINAL_PRIOR of it)
 
-by Gauss-Newton on a finite-difference Jacobian (the table is linear in c, so two or three iterations
-suffice). The roughness weight lambda is chosen by cross-validation over the diagnosis's two folds of
+by Gauss-Newton on a finite-difference Jacobian (the table is linear in c, but a formula fit far from the
+optimum, its nominal parameters bent to the wrong shape, needs more than three iterations: up to GN_ITER). The roughness weight lambda is chosen by cross-validation over the diagnosis's two folds of
 alternating 0.5 s time blocks: for each lambda on a log grid the linearized problem is solved on one fold
 and the angle residual predicted on the other (``fit.fold_masks`` layout). The *held-out error* of a model
 (formula or map) is measured the same way for both, but with the true simulation on the held-out fold:
@@ -71,7 +73,6 @@ class MapTerm:
     scale: float                  # typical knot value (normalization of the coefficients)
     unit: str
     fixed: tuple = ()             # other fields of the component ((name, value), ...)
-    pinned: tuple = ()            # indices of knots held at 0 whatever the data (anchored like unvisited ones)
 
     @property
     def n_coef(self) -> int:
@@ -241,19 +242,13 @@ def visit_time_s(term: "MapTerm", data: Data) -> np.ndarray | None:
     return None
 
 
-LH_KNOT = True
-LH_PIN = False
-
-
 def angle_torque_term(tid: str, family: str, base, data: Data, n: int, scale: float) -> MapTerm:
-    """A torque-over-angle table over the stroke with a knot at limp-home, held at 0 there: the limp-home
-    spring's preload is the torque at limp-home (above it and, mirrored, below it), and a table free at that
-    knot trades with it: the data above limp-home see only their sum, so the twin's preload, and with it the
-    torque below limp-home where recordings rarely go, would be set by the table's roughness alone."""
-    g = angle_grid(base, data, n, limp_home=LH_KNOT)
-    lh = _lh(base)
-    pin = tuple(int(k) for k in np.flatnonzero(np.abs(g - lh) < 1e-12)) if LH_PIN and math.isfinite(lh) else ()
-    return MapTerm(tid, family, mx.AngleTorqueMap, g, ("torque_Nm",), scale, "N m", pinned=pin)
+    """A torque-over-angle table over the stroke with a knot at limp-home. The data above limp-home see the
+    spring's preload and rate only as a sum with the table; with a knot there, a table that the recordings do not
+    identify at limp-home (the plate held in the spring's contact band: :func:`anchor_unidentified`) is held at 0
+    from limp-home down, so the preload carries the torque at limp-home and, mirrored, below it."""
+    return MapTerm(tid, family, mx.AngleTorqueMap, angle_grid(base, data, n, limp_home=True), ("torque_Nm",),
+                   scale, "N m")
 
 
 # which table refines which family's formula
@@ -327,7 +322,7 @@ class Problem:
             for j, k in enumerate(idx):
                 D[:, pos[k]] = R[:, j]
                 ridge[pos[k]] = 1.0
-                if (vis is not None and vis[j] < VISIT_MIN_S) or j % t.grid.size in t.pinned:
+                if vis is not None and vis[j] < VISIT_MIN_S:
                     anchor[pos[k]] = 1.0
             groups.append((D, ridge, anchor))
         return cls(spec, np.asarray(x, float), free, groups, nameplate_prior(spec, free))
