@@ -8,6 +8,12 @@ calibrated_plant.toml; e.g. from ``twin_harness.py --diagnose --keep DIR``). One
 
     nice -n 10 .venv/bin/python scripts/twin_rescore.py clean:2:random=DIR/out_clean_2 [--plant DIR/clean_2_plant.toml]
     nice -n 10 .venv/bin/python scripts/twin_rescore.py airflow_torque@1:0=DIR/out_airflow_torque_s1_0 --refit
+
+``--named`` (round 8) needs no diagnosis: the case's own family is taken as named, its formula fitted and its table
+refined on this tree (:func:`named_case`); ``--static`` adds the twin's static torque against the truth's around
+limp-home, and the rows give the held-out residual per angle band (``ho_bands``):
+
+    nice -n 10 .venv/bin/python scripts/twin_rescore.py --named --static --duration 6 airflow_torque@2:1 shaft_flux_loss@1:1
 """
 from __future__ import annotations
 
