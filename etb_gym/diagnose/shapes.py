@@ -5,11 +5,13 @@ and the data (the angle knots span the plant's own stops, the speed and current 
 recordings visit). Its knot values are the fitted coefficients c, found by output error together with the
 calibrated nominal parameters (the model's other parameters stay at their fitted values):
 
-    minimize  |r(x)|^2 + lambda |D c|^2        r: the diagnosis's normalized residual (fit.make_fun)
-                                               D: second differences of the knot values (roughness)
+    minimize  |r(x)|^2 + lambda |D c|^2 + |x_nom / sigma|^2
+                                  r: the diagnosis's normalized residual (fit.make_fun)
+                                  D: second differences of the knot values (roughness)
+                                  x_nom: the nominal parameters, 0 at the nameplate (sigma: NOMINAL_PRIOR of it)
 
-by Gauss-Newton on a finite-difference Jacobian (the table is linear in c, so two or three iterations
-suffice). The roughness weight lambda is chosen by cross-validation over the diagnosis's two folds of
+by Gauss-Newton on a finite-difference Jacobian (the table is linear in c, but a formula fit far from the
+optimum, its nominal parameters bent to the wrong shape, needs more than three iterations: up to GN_ITER). The roughness weight lambda is chosen by cross-validation over the diagnosis's two folds of
 alternating 0.5 s time blocks: for each lambda on a log grid the linearized problem is solved on one fold
 and the angle residual predicted on the other (``fit.fold_masks`` layout). The *held-out error* of a model
 (formula or map) is measured the same way for both, but with the true simulation on the held-out fold:
@@ -45,7 +47,7 @@ from .model import Data, Spec, _layout, residuals, simulate
 
 MIN_GAIN = 0.05          # a map replaces the formula only if the held-out error falls by at least this fraction
 LAMBDAS = tuple(10.0 ** np.arange(-3.0, 3.5, 0.5))   # roughness weights (relative, see _penalty_scale)
-GN_ITER = 3
+GN_ITER = 8             # Gauss-Newton iterations at most (stops when the objective falls by < 0.5 %)
 FD_STEP = 0.5            # finite-difference step in normalized units (a knot value moves by FD_STEP * scale)
 ANGLE_KNOTS = 16         # knots of a refined angle map over the stroke
 PROFILE_KNOTS = 17       # knots of a torque-constant or friction profile over the stroke (5.6 deg on 3B)
@@ -137,12 +139,26 @@ def data_speeds_rad_s(data: Data) -> np.ndarray:
     return np.concatenate([np.gradient(np.radians(smooth(rd.rec.angle_deg, 15)), rd.rec.dt_s) for rd in data.recs])
 
 
-def angle_grid(base, data: Data, n: int) -> np.ndarray:
-    """n knots over the plant's stroke (its stops; the visited range if the plant has none)."""
+def angle_grid(base, data: Data, n: int, limp_home: bool = False) -> np.ndarray:
+    """n knots over the plant's stroke (its stops; the visited range if the plant has none); with ``limp_home``
+    the knot nearest the plant's limp-home angle is moved onto it (a torque table meets the spring there)."""
     phi = data_angles_rad(data)
     lo = base.angle_min_rad if math.isfinite(base.angle_min_rad) else float(np.min(phi))
     hi = base.angle_max_rad if math.isfinite(base.angle_max_rad) else float(np.max(phi))
-    return np.linspace(lo, hi, n)
+    g = np.linspace(lo, hi, n)
+    lh = _lh(base)
+    if limp_home and math.isfinite(lh) and lo < lh < hi:
+        k = int(np.argmin(np.abs(g - lh)))
+        if 0 < k < n - 1 and abs(g[k] - lh) < 0.25 * (g[1] - g[0]):
+            g[k] = lh              # a knot close by moves onto limp-home (the grid stays nearly uniform) ...
+        else:                      # ... else one more knot (never moving a stop's)
+            g = np.sort(np.append(g, lh))
+    return g
+
+
+def _lh(base) -> float:
+    """The plant's limp-home angle (nan without a spring)."""
+    return base.limp_home_rad if base.spring is not None else math.nan
 
 
 def local_angle_grid(base, centre_rad: float, below_deg: float, above_deg: float, step_deg: float = 0.5) -> np.ndarray:
@@ -226,6 +242,15 @@ def visit_time_s(term: "MapTerm", data: Data) -> np.ndarray | None:
     return None
 
 
+def angle_torque_term(tid: str, family: str, base, data: Data, n: int, scale: float) -> MapTerm:
+    """A torque-over-angle table over the stroke with a knot at limp-home. The data above limp-home see the
+    spring's preload and rate only as a sum with the table; with a knot there, a table that the recordings do not
+    identify at limp-home (the plate held in the spring's contact band: :func:`anchor_unidentified`) is held at 0
+    from limp-home down, so the preload carries the torque at limp-home and, mirrored, below it."""
+    return MapTerm(tid, family, mx.AngleTorqueMap, angle_grid(base, data, n, limp_home=True), ("torque_Nm",),
+                   scale, "N m")
+
+
 # which table refines which family's formula
 def family_terms(cid: str, base, data: Data) -> list:
     """The maps that may refine candidate ``cid`` (the one with the lowest held-out error is tried):
@@ -242,8 +267,7 @@ def family_terms(cid: str, base, data: Data) -> list:
 def family_term(cid: str, base, data: Data) -> MapTerm | None:
     """The map that refines candidate ``cid`` (None: the family has no table form here)."""
     if cid in ("airflow_torque", "spring_asymmetry"):
-        return MapTerm(f"{cid}_map", "mechanical", mx.AngleTorqueMap, angle_grid(base, data, ANGLE_KNOTS),
-                       ("torque_Nm",), 0.005, "N m")
+        return angle_torque_term(f"{cid}_map", "mechanical", base, data, ANGLE_KNOTS, 0.005)
     if cid in ("shaft_flux_loss", "torque_constant_error"):
         return MapTerm(f"{cid}_map", "magnetic", mx.TorqueConstantMap, angle_grid(base, data, PROFILE_KNOTS),
                        ("delta_Nm_per_A",), 0.002, "N m/A")
@@ -279,6 +303,7 @@ class Problem:
     free: np.ndarray                      # indices into x
     groups: list                          # per table: (D rows over the free parameters, ridge mask over them,
                                           #             anchor mask: knots the data did not visit)
+    prior: np.ndarray | None = None       # per free parameter: weight of its pull to x = 0 (the nameplate)
 
     @classmethod
     def make(cls, spec: Spec, x, free_ids, terms=(), data: Data | None = None) -> "Problem":
@@ -300,7 +325,7 @@ class Problem:
                 if vis is not None and vis[j] < VISIT_MIN_S:
                     anchor[pos[k]] = 1.0
             groups.append((D, ridge, anchor))
-        return cls(spec, np.asarray(x, float), free, groups)
+        return cls(spec, np.asarray(x, float), free, groups, nameplate_prior(spec, free))
 
     def penalty(self, lams) -> np.ndarray:
         """The penalty's matrix sum_g lambda_g (D_g^T D_g + RIDGE diag(table_g) + ANCHOR diag(unvisited_g)) over
@@ -311,7 +336,27 @@ class Problem:
         P = np.zeros((self.free.size, self.free.size))
         for lam, G in zip(lams, self._unit_penalties):
             P += lam * G
+        if self.prior is not None:
+            P += np.diag(self.prior)
         return P
+
+
+NOMINAL_PRIOR = 0.2      # the calibrated nominal parameters' spread about the nameplate (relative, one sigma)
+
+
+def nameplate_prior(spec: Spec, free: np.ndarray) -> np.ndarray | None:
+    """Per free parameter: the weight 1/sigma^2 (normalized units, residuals in noise units) that pulls a nominal
+    parameter (friction level, spring preload and rate) to its nameplate value with sigma = NOMINAL_PRIOR of it.
+    Where the data identify the parameter this is negligible; where a table can do its job (a table's straight
+    line above limp-home is the spring's preload and rate to the data there) it decides the split."""
+    if not NOMINAL_PRIOR:
+        return None
+    w = np.zeros(free.size)
+    for j, k in enumerate(free):
+        owner, p = spec.params[k]
+        if owner == "nominal" and p.init > 0.0:
+            w[j] = (p.scale / (NOMINAL_PRIOR * p.init)) ** 2
+    return w
 
 
 def _row_info(data: Data):
@@ -473,12 +518,13 @@ def _coarse(spec: Spec, substeps: int) -> Spec:
     return Spec(spec.base.replace(substeps=substeps), spec.candidates, spec.nominal)
 
 
-def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int = GN_ITER, jac_substeps: int = JAC_SUBSTEPS,
+def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int | None = None, jac_substeps: int = JAC_SUBSTEPS,
                   log=None) -> PenalizedFit:
     """Output-error fit of the free parameters with the roughness penalty; the weights by cross-validation
     (re-chosen at every Jacobian; the step is damped (Levenberg) if the plain one does not lower the
     penalized objective). Jacobians are taken at
     ``jac_substeps`` (the residual itself at the model's own step)."""
+    iters = GN_ITER if iters is None else iters
     x = _clip(pb, pb.x.copy())
     pb = dataclasses.replace(pb, x=x)
     r = _residual(pb.spec, data, x)
