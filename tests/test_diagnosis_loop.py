@@ -5,6 +5,7 @@ import numpy as np
 from etb_gym.diagnose.model import LOOP_Z, closed_loop_evidence
 from etb_gym.diagnose.synthetic import make_recording
 from etb_gym.plant import make_plant
+from scripts_loader import load_script
 
 
 def test_closed_loop_is_told_from_open_loop_by_the_voltage_reacting_to_the_readings():
@@ -35,14 +36,8 @@ def test_loops_that_filter_the_noise_and_open_loop_chirps_are_told_apart():
     """The controllers the earlier d2 statistic missed (it read 1.5-3.3 on them against its threshold of 15):
     a PID without friction compensation (its roll-off filters the noise) and a relay; and a chirp, which that
     statistic read as 17.7 once, stays open (scripts/loop_detection.py measures the whole table)."""
-    import importlib.util
-    import pathlib
-
     from etb_gym.diagnose.model import LOOP_Z_D2, closed_loop_evidence_d2
-    spec = importlib.util.spec_from_file_location(
-        "loop_detection", pathlib.Path(__file__).resolve().parents[1] / "scripts" / "loop_detection.py")
-    L = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(L)
+    L = load_script("loop_detection")
     truth = make_plant("3B", substeps=20)
     for kind in ("pid-nofc", "relay"):
         rec = L.record(truth, kind, np.random.default_rng(5), 2.0, 0.01, 0.0, make_plant("3B"))

@@ -7,6 +7,7 @@ import sys
 import textwrap
 
 from etb_gym.diagnose import proof
+from scripts_loader import load_script
 
 
 def test_torn_last_row_is_dropped_and_cut_from_the_file(tmp_path):
@@ -51,21 +52,11 @@ def test_main_returns_an_exit_code_and_resume_needs_out(capsys):
     assert "--resume and --summarize need --out DIR" in capsys.readouterr().err
 
 
-def _naming_survey():
-    import importlib.util
-    import pathlib
-    spec = importlib.util.spec_from_file_location(
-        "naming_survey", pathlib.Path(__file__).resolve().parents[1] / "scripts" / "naming_survey.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_naming_survey_counts_closed_loops_by_the_observer_footprint_and_reports_cpu_per_10_s(tmp_path):
     """scripts/naming_survey.py's tables: detectable by the replay footprint (effect_size) as the proof counts;
     closed loops also by what the observer residual sees (effect_size_observer); clean `match` rates; the
     diagnosis's CPU time scaled to a 10 s recording; below-3x effects outside the catalogue not counted."""
-    S = _naming_survey()
+    S = load_script("naming_survey")
     base = dict(nameplate="random", seed=3, loop="closed", verdict="match", effects=[], named=False,
                 time_s=5.0, duration_s=6.0)
     rows = [dict(base, family="shaft_flux_loss@1", case="shaft_flux_loss@1", effect_size=19.6,

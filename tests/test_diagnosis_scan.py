@@ -1,7 +1,5 @@
 """The coarse scan before a candidate's local fit (fit.scan_start): where it looks, and a case it rescues."""
-import importlib.util
 import math
-import pathlib
 
 import pytest
 
@@ -10,6 +8,7 @@ from etb_gym.diagnose.candidates import CANDIDATES
 from etb_gym.diagnose.model import Spec, prepare, restart_view
 from etb_gym.diagnose.run import choose_substeps
 from etb_gym.plant import make_plant
+from scripts_loader import load_script
 
 
 def test_scan_offsets_are_log_spaced_inside_the_bounds_on_each_side_with_room():
@@ -26,20 +25,12 @@ def test_scan_offsets_are_log_spaced_inside_the_bounds_on_each_side_with_room():
     assert all(lo <= x <= hi for x in F.scan_offsets(lo, hi))
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location(
-        "scan_start_cases", pathlib.Path(__file__).resolve().parents[1] / "scripts" / "scan_start_cases.py")
-    S = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(S)
-    return S
-
-
 def test_scan_finds_a_closed_loop_sensor_offset_the_local_fit_alone_misses():
     """Closed loop, 0.5 deg sensor offset, the reference closes the plate to the stop: the observer residual is
     steep in the offset where the plate meets the stop, so the screening fit (SCREEN_NFEV evaluations) from
     offset 0 barely moves; started from the scan's best point it lands near the truth's 0.5 deg."""
     from etb_gym.diagnose.explain import SCREEN_NFEV, extend
-    rec = _script().offset_closed_recording(duration_s=2.6, offset_deg=0.5, noise_deg=0.01, seed=0)
+    rec = load_script("scan_start_cases").offset_closed_recording(duration_s=2.6, offset_deg=0.5, noise_deg=0.01, seed=0)
     base = make_plant("3B")
     data = prepare([rec], base.supply.voltage_V, residual="observer")
     assert data.recs[0].residual == "observer"
