@@ -168,7 +168,7 @@ def test_carried_stribeck_curve_gives_the_same_bits_as_recomputing_it(name, rich
     five compositions no other test steps in parallel: the four recomputing ones and 3B+effects.)"""
     p = _carry_cases()[name]
     q = p.replace(friction=_LuGreRecomputing(p.friction.params))
-    assert "c1 = substep(" in p.engine.source and "c1" not in q.engine.source
+    assert "c1n = substep(" in p.engine.source and "c1" not in q.engine.source
     assert p.fast == q.fast == HAVE_NUMBA
     sw = "switching" in name
     d = rich_duty[:2000:4 if sw else 1]
