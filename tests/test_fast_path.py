@@ -102,7 +102,9 @@ def test_batch_step_equals_single_steps(pwm_mode, parallel):
 
 @needs_numba
 def test_batch_step_plain_engine_agrees_and_reports_nonfinite():
-    p = make_plant("3A")
+    """(3B, whose parallel batch step test_batch_step_equals_single_steps compiles already: on 3A this test alone
+    compiled a batch step, ~13 s CPU on a cold cache.)"""
+    p = make_plant("3B")
     N = 4
     X, P, V, D = _batch_inputs(p, N, seed=1)
     Xp, AUX, AUXp, OK, OKp = X.copy(), np.zeros((N, 4)), np.zeros((N, 4)), np.zeros(N, bool), np.zeros(N, bool)
@@ -150,8 +152,11 @@ class _LuGreRecomputing(LuGreFriction):
 
 
 def _carry_cases():
-    return {"3B": make_plant("3B"), "3C": make_plant("3C"), "3A-switching": make_plant("3A", pwm_mode="switching"),
-            "3B-switching-9V": make_plant("3B", pwm_mode="switching", supply_V=9.0),
+    """Each case compiles a recomputing twin no other test needs (~10 s CPU on a cold cache), so two cases that
+    between them take every generated path: switching PWM (control_step_dx, single and batch) on the linear drive,
+    averaged PWM (control_step_group) on the nonlinear-inductance drive with effects before and after LuGre (the
+    carried value's index moves, contacts and a state effect cross the carried substep)."""
+    return {"3A-switching": make_plant("3A", pwm_mode="switching"),
             "3B+effects": make_plant("3B", effects=_effects())}
 
 
@@ -165,7 +170,7 @@ def test_carried_stribeck_curve_gives_the_same_bits_as_recomputing_it(name, rich
     control_step_dx (switching) per plant as the parallel batch_step runs on each thread, so the carried values
     are checked on every generated path; that the parallel batch step equals single steps is
     test_batch_step_equals_single_steps. (Checking parallel=None here too compiled a parallel batch step for
-    five compositions no other test steps in parallel: the four recomputing ones and 3B+effects.)"""
+    compositions no other test steps in parallel: the recomputing ones and 3B+effects.)"""
     p = _carry_cases()[name]
     q = p.replace(friction=_LuGreRecomputing(p.friction.params))
     assert "c1n = substep(" in p.engine.source and "c1" not in q.engine.source
