@@ -154,8 +154,8 @@ class _LuGreRecomputing(LuGreFriction):
 def _carry_cases():
     """Each case compiles a recomputing twin no other test needs (~10 s CPU on a cold cache), so two cases that
     between them take every generated path: switching PWM (control_step_dx, single and batch) on the linear drive,
-    averaged PWM (control_step_group) on the nonlinear-inductance drive with effects before and after LuGre (the
-    carried value's index moves, contacts and a state effect cross the carried substep)."""
+    averaged PWM (control_step_group) on the nonlinear-inductance drive with four effects beside the carry (a state
+    effect, a second friction term and the backlash's contacts, whose resolve path carries the value too)."""
     return {"3A-switching": make_plant("3A", pwm_mode="switching"),
             "3B+effects": make_plant("3B", effects=_effects())}
 
