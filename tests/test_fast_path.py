@@ -286,7 +286,7 @@ def test_substep_loop_makes_no_reference_count_calls():
 
 @needs_numba
 def test_rhs_is_compiled_once_for_the_plant_and_the_envs():
-    """Plant.initial_state, Plant.reference and the envs' resets call the generated rhs with a read-only P
+    """Plant.initial_state, Plant.reference and the envs' resets (randomized or not) call the generated rhs with a read-only P
     (plant.read_only): a writable P from the plant beside the envs' read-only one compiled rhs twice per
     composition (numba compiles once per argument type)."""
     import gymnasium as gym
@@ -294,6 +294,7 @@ def test_rhs_is_compiled_once_for_the_plant_and_the_envs():
     p = make_plant("3B")
     p.reference(np.full(2, 0.2))
     gym.make("ETB-3B-v0").reset(seed=0)
+    gym.make("ETB-3B-v0", randomize=True).reset(seed=0)       # a drawn P, made read-only too
     gym.make_vec("ETB-3B-v0", num_envs=2).reset(seed=0)
     sigs = p.engine.fns.rhs.signatures
     assert len(sigs) == 1 and not sigs[0][3].mutable, sigs
