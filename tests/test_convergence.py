@@ -11,7 +11,7 @@ import pytest
 
 import etb_gym  # noqa: F401  (registers the ids)
 from etb_gym import MODELS, integrate, make_plant
-from etb_gym.accuracy import errors, monotone, observed_order
+from etb_gym.accuracy import errors, main, monotone, observed_order
 from etb_gym.components.effects_mechanical import Backlash, EndStopCompliance
 from etb_gym.excitation import rich_excitation
 from etb_gym.integrate import H_MAX_S, substeps_used
@@ -36,6 +36,13 @@ def test_release_from_90_deg_converges_monotonically(model):
 def test_observed_order_formula():
     assert observed_order([10, 20, 40], [4.0, 1.0, 0.25]) == [2.0, 2.0]
     assert monotone([3, 2, 1]) and not monotone([3, 3.5, 1])
+
+
+def test_accuracy_cli_rejects_substeps_the_stepper_would_raise(capsys):
+    """--substeps 2 at 1 ms would run 3 (h_max) and print it as "2"."""
+    with pytest.raises(SystemExit):
+        main(["--models", "3B", "--substeps", "2", "4"])
+    assert "at least 3 substeps per 1 ms" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------ stability
