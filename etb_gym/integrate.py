@@ -33,7 +33,8 @@ parameter vector P = [J_kg_m2, <component parameter vectors in plant order>].
 
 Substeps: n = max(n_sub, ceil(dt / H_MAX_S)), h = dt / n (``substeps_for``; H_MAX_S = 333 us, 3 per ms).
 Scheme (second order, Strang splitting): the states of components with an ``advance`` (bristles) form flow A,
-updated exactly for a frozen shaft and coil state; everything else (phi, omega, i, the other states) forms flow B, integrated by the explicit midpoint rule with the A states frozen:
+updated exactly for a frozen shaft and coil state; everything else (phi, omega, i, the other states) forms flow B,
+integrated by the explicit midpoint rule with the A states frozen:
     A(h/2) B(h) A(h/2),   B:  k1 = f(t, y),  y_m = y + h/2 k1,  y <- y + h f(t + h/2, y_m)
 The A half-steps of neighbouring substeps meet at the same state and are applied as one A(h) (``hp`` is
 the half step still owed); a control period begins with A(h/2) and ends with A(h/2).
@@ -42,7 +43,8 @@ Damping. A component whose torque damps the shaft strongly declares ``damping`` 
 sign(omega) z / g) + sigma2, 2 sigma1 + sigma2 right after a velocity reversal: 2 sigma1 / J = 7333 1/s, beyond
 the explicit midpoint's h |lambda| <= 2 at h > 273 us). With w = h D / J (D the sum of the dampings at the
 start of flow B) above RHO_DAMP, omega takes the exponential midpoint step for the linear part -D omega / J:
-    omega_m = omega + h/2 phi1(-w/2) f_omega(y),  omega <- omega + h phi1(-w) f_omega(y_m) + (1 - e^-w)(omega_m - omega)
+    omega_m = omega + h/2 phi1(-w/2) f_omega(y)
+    omega <- omega + h phi1(-w) f_omega(y_m) + (1 - e^-w) (omega_m - omega)
 (phi1(z) = (e^z - 1)/z; exact on domega/dt = -D omega/J + const at any h, the explicit midpoint as w -> 0). At
 w <= RHO_DAMP (every substep at n >= 5 per ms at the default parameters) it is the explicit midpoint to the bit.
 
@@ -112,7 +114,7 @@ def layout(components, param_vectors) -> Layout:
     return Layout(s0, p0, tuple(ss), tuple(ps))
 
 
-H_MAX_S = 1e-3 / 3  # the longest substep [s] (3 per ms): what the scheme is stable and about as accurate for (docs/model.md sec. 9)
+H_MAX_S = 1e-3 / 3  # the longest substep [s] (3 per ms); accuracy bounds it now, not stability (docs/model.md sec. 9)
 RHO_STIFF = 1.2    # a slow stiff contact (negative rate -r) with h r above this is cut into pieces of h r <= RHO_STIFF
 RHO_DAMP = 1.75    # where h * (the components' damping) / J exceeds this, omega's damping is taken exponentially
 GROUP = 2   # plants stepped in lockstep by batch_step (averaged PWM): -9 % CPU per plant-step, same bits
