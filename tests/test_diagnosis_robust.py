@@ -49,3 +49,24 @@ def test_one_fuzz_case_runs_the_cli_end_to_end(tmp_path):
              supply=True, format=".mat", names=1, candidates=["sensor_offset_gain"])
     row = fuzz.run_case(c, timeout_s=600.0)
     assert row["outcome"] in ("ok", "refused", "failed"), row
+
+
+def test_csv_value_with_an_underscore_is_not_read_as_a_number(tmp_path):
+    """Regression (found by the loader fuzz): Python's float() reads "6_0" as 60, so a mistyped CSV cell became a
+    silent 60 V; now it is refused, naming the file, the column, the row and the line."""
+    from etb_gym.recordings import RecordingError, load_recording
+    t = np.arange(300) * 1e-3
+    rows = [f"{x:.3f},{'6_0' if k == 101 else '6.0'},{5 + 10 * x:.4f}" for k, x in enumerate(t)]
+    p = tmp_path / "rig.csv"
+    p.write_text("time_s,voltage_V,angle_deg\n" + "\n".join(rows) + "\n")
+    with pytest.raises(RecordingError, match=r"rig\.csv: column 'voltage_V', row 101: '6_0' is not a number"):
+        load_recording(p)
+
+
+def test_columns_of_different_lengths_name_both(tmp_path):
+    """A scalar time column used to read "column 'angle_deg' has 300 rows: expected 1 like 'time_s'"."""
+    from etb_gym.recordings import RecordingError, load_recording
+    p = tmp_path / "rig.npz"
+    np.savez(p, time_s=np.float64(1.0), voltage_V=np.zeros(300), angle_deg=np.full(300, 5.0))
+    with pytest.raises(RecordingError, match=r"rig\.npz: column '\w+' has 300 rows but 'time_s' has 1"):
+        load_recording(p)
