@@ -70,3 +70,18 @@ def test_columns_of_different_lengths_name_both(tmp_path):
     np.savez(p, time_s=np.float64(1.0), voltage_V=np.zeros(300), angle_deg=np.full(300, 5.0))
     with pytest.raises(RecordingError, match=r"rig\.npz: column '\w+' has 300 rows but 'time_s' has 1"):
         load_recording(p)
+
+
+def test_a_candidate_tied_to_a_missing_component_is_refused_not_a_key_error():
+    """Regression (found by the plant-file fuzz): a plant file without a spring (``"spring": null``) and the
+    candidate spring_asymmetry, which copies the spring's limp-home angle, raised KeyError 'spring.limp_home_rad'
+    from the fit (the CLI's "internal error"); now building the model raises a ValueError naming what is
+    missing, so the selection skips the candidate and lists it under skipped_candidates."""
+    from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.model import Spec
+    from etb_gym.plant import Plant
+    d = make_plant("3B").to_dict()
+    d["spring"] = None
+    spec = Spec(Plant.from_dict(d)).with_candidate(CANDIDATES["spring_asymmetry"])
+    with pytest.raises(ValueError, match=r"spring_asymmetry needs the plant's spring\.limp_home_rad.*no spring component"):
+        spec.build(np.zeros(len(spec.params)))
