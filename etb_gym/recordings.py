@@ -187,6 +187,8 @@ def _read_csv(path: Path) -> dict:
         for c, (h, v) in enumerate(zip(header, row)):
             v = v.strip()
             try:
+                if "_" in v:            # Python's float() reads "6_0" as 60: not a decimal number in a CSV
+                    raise ValueError(v)
                 cols[c][r] = float(v) if v else math.nan
             except ValueError:
                 if comma_decimal and v.count(",") == 1 and _is_number(v.replace(",", ".")):
@@ -198,6 +200,8 @@ def _read_csv(path: Path) -> dict:
 
 
 def _is_number(s: str) -> bool:
+    if "_" in s:
+        return False
     try:
         float(s)
         return True
@@ -330,7 +334,8 @@ def _check_rows(source, named, kt, n):
         if a is None:
             continue
         if a.size != n:
-            raise RecordingError(f"{source}: column {k!r} has {a.size} rows: expected {n} like {kt!r}")
+            raise RecordingError(f"{source}: column {k!r} has {a.size} rows but {kt!r} has {n}: expected the same "
+                                 f"number of rows in every column")
         bad = ~np.isfinite(a)
         if bad.any():
             r = int(np.argmax(bad))

@@ -202,6 +202,10 @@ class Spec:
             if c.sensor:
                 sensor.update(fields)
                 continue
+            missing = [k for _, k in c.ties if k not in pd]
+            if missing:             # e.g. spring_asymmetry on a plant file without a spring: not applicable
+                raise ValueError(f"{c.id} needs the plant's {', '.join(missing)}, and this plant has no "
+                                 f"{missing[0].split('.')[0]} component")
             fields.update({f: pd[k] for f, k in c.ties})
             fields.update(dict(c.fixed))
             e = c.component(c.component.Params(**fields))
