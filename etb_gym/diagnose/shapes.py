@@ -58,6 +58,7 @@ ANCHOR = 1e3             # ... and is pulled to 0 (the formula alone) with this 
 ID_MIN = 0.01           # a knot whose Jacobian column carries less than this share of its table's median is not
                          # identified either (the plate pinned at a stop or in the limp-home band): anchored too
 OUTER_SPEED = 3.0        # speed tables get a last knot at this multiple of the fastest speed visited (anchored)
+LAMBDA_KEEP = 0.05       # the roughness weights of the last linearization stay unless a new choice scores this much lower
 
 
 # ------------------------------------------------------------------------------------ map terms
@@ -397,6 +398,14 @@ def jacobian(pb: Problem, data: Data, r0: np.ndarray, step: float = FD_STEP) -> 
     return J
 
 
+def _jacobian_at(pb: Problem, data: Data, r: np.ndarray, jac_substeps: int) -> np.ndarray:
+    """:func:`jacobian` of ``pb`` at ``jac_substeps`` (:func:`_coarse`); ``r``, the residual at pb.x at the
+    model's own step, is reused where that step is not coarsened (one simulation less)."""
+    spec = _coarse(pb.spec, jac_substeps)
+    r0 = r if spec is pb.spec else _residual(spec, data, pb.x)
+    return jacobian(dataclasses.replace(pb, spec=spec), data, r0)
+
+
 def _penalty_scales(J: np.ndarray, pb: Problem) -> list:
     """Per table: mean squared Jacobian column over mean squared roughness column, so that a relative
     weight of 1 balances the data and the roughness whatever the table's units."""
@@ -460,9 +469,11 @@ class _Folds:
         return tot
 
 
-def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2) -> tuple[list, list]:
+def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2, previous=None) -> tuple[list, list]:
     """Roughness weights (relative) by linearized cross-validation over the two time-block folds, angle rows
-    scored: a common weight first, then each table's weight in turn (coordinate search on the grid)."""
+    scored: a common weight first, then each table's weight in turn (coordinate search on the grid). With
+    ``previous`` (the weights of the last linearization) those are kept unless the new choice scores lower by
+    more than LAMBDA_KEEP."""
     if not pb.groups:
         return [], []
     folds = _Folds(J, r, data)
@@ -482,6 +493,9 @@ def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2)
                     if best is None or v < best[0]:
                         best = (v, g)
                 rel[k] = best[1]
+    if previous is not None and LAMBDA_KEEP > 0 and list(previous) != rel:
+        if folds.score(pb, absl(previous)) <= (1.0 + LAMBDA_KEEP) * folds.score(pb, absl(rel)):
+            rel = list(previous)
     return rel, curve
 
 
@@ -523,7 +537,10 @@ def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int | None = Non
     """Output-error fit of the free parameters with the roughness penalty; the weights by cross-validation
     (re-chosen at every Jacobian; the step is damped (Levenberg) if the plain one does not lower the
     penalized objective). Jacobians are taken at
-    ``jac_substeps`` (the residual itself at the model's own step)."""
+    ``jac_substeps`` (the residual itself at the model's own step). The weights of the last linearization are
+    kept unless the new choice scores lower by more than LAMBDA_KEEP: re-chosen freely, they alternated
+    between two neighbouring grid values at every linearization, so the objective (a different one at each
+    weight) never settled and every fit ran all ``iters`` iterations (docs/diagnosis-shapes.md, Time)."""
     iters = GN_ITER if iters is None else iters
     x = _clip(pb, pb.x.copy())
     pb = dataclasses.replace(pb, x=x)
@@ -531,13 +548,11 @@ def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int | None = Non
     lams = rel = None
     curve = []
     J = None
-    coarse = dataclasses.replace(pb, spec=_coarse(pb.spec, jac_substeps))
     for it in range(iters):
-        coarse.x = pb.x
-        J = jacobian(coarse, data, _residual(coarse.spec, data, pb.x))
+        J = _jacobian_at(pb, data, r, jac_substeps)
         if it == 0:
             pb = anchor_unidentified(pb, J)
-        rel, c = choose_lambdas(J, r, pb, data, grid)      # re-chosen at every linearization
+        rel, c = choose_lambdas(J, r, pb, data, grid, previous=rel)     # re-chosen at every linearization
         curve = curve or c
         lams = [a * b for a, b in zip(rel, _penalty_scales(J, pb))]
         theta = pb.x[pb.free]
@@ -576,8 +591,7 @@ def heldout_error(pb: Problem, data: Data, lams=(), J=None, jac_substeps: int = 
     residual is simulated. Comparable between a formula (no tables) and a map."""
     r = _residual(pb.spec, data, pb.x)
     if J is None:
-        coarse = dataclasses.replace(pb, spec=_coarse(pb.spec, jac_substeps))
-        J = jacobian(coarse, data, _residual(coarse.spec, data, pb.x))
+        J = _jacobian_at(pb, data, r, jac_substeps)
     fold, is_angle = _row_info(data)
     tot, cnt = 0.0, 0
     for f in (0, 1):
