@@ -58,7 +58,6 @@ ANCHOR = 1e3             # ... and is pulled to 0 (the formula alone) with this 
 ID_MIN = 0.01           # a knot whose Jacobian column carries less than this share of its table's median is not
                          # identified either (the plate pinned at a stop or in the limp-home band): anchored too
 OUTER_SPEED = 3.0        # speed tables get a last knot at this multiple of the fastest speed visited (anchored)
-LAMBDA_KEEP = 0.05       # the roughness weights of the last linearization stay unless a new choice scores this much lower
 
 
 # ------------------------------------------------------------------------------------ map terms
@@ -469,11 +468,9 @@ class _Folds:
         return tot
 
 
-def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2, previous=None) -> tuple[list, list]:
+def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2) -> tuple[list, list]:
     """Roughness weights (relative) by linearized cross-validation over the two time-block folds, angle rows
-    scored: a common weight first, then each table's weight in turn (coordinate search on the grid). With
-    ``previous`` (the weights of the last linearization) those are kept unless the new choice scores lower by
-    more than LAMBDA_KEEP."""
+    scored: a common weight first, then each table's weight in turn (coordinate search on the grid)."""
     if not pb.groups:
         return [], []
     folds = _Folds(J, r, data)
@@ -493,9 +490,6 @@ def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2,
                     if best is None or v < best[0]:
                         best = (v, g)
                 rel[k] = best[1]
-    if previous is not None and LAMBDA_KEEP > 0 and list(previous) != rel:
-        if folds.score(pb, absl(previous)) <= (1.0 + LAMBDA_KEEP) * folds.score(pb, absl(rel)):
-            rel = list(previous)
     return rel, curve
 
 
@@ -537,10 +531,7 @@ def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int | None = Non
     """Output-error fit of the free parameters with the roughness penalty; the weights by cross-validation
     (re-chosen at every Jacobian; the step is damped (Levenberg) if the plain one does not lower the
     penalized objective). Jacobians are taken at
-    ``jac_substeps`` (the residual itself at the model's own step). The weights of the last linearization are
-    kept unless the new choice scores lower by more than LAMBDA_KEEP: re-chosen freely, they alternated
-    between two neighbouring grid values at every linearization, so the objective (a different one at each
-    weight) never settled and every fit ran all ``iters`` iterations (docs/diagnosis-shapes.md, Time)."""
+    ``jac_substeps`` (the residual itself at the model's own step)."""
     iters = GN_ITER if iters is None else iters
     x = _clip(pb, pb.x.copy())
     pb = dataclasses.replace(pb, x=x)
@@ -552,7 +543,7 @@ def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int | None = Non
         J = _jacobian_at(pb, data, r, jac_substeps)
         if it == 0:
             pb = anchor_unidentified(pb, J)
-        rel, c = choose_lambdas(J, r, pb, data, grid, previous=rel)     # re-chosen at every linearization
+        rel, c = choose_lambdas(J, r, pb, data, grid)      # re-chosen at every linearization
         curve = curve or c
         lams = [a * b for a, b in zip(rel, _penalty_scales(J, pb))]
         theta = pb.x[pb.free]
