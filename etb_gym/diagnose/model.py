@@ -183,18 +183,29 @@ class Spec:
         """Normalized x from known physical values (others at their start)."""
         return np.array([(values.get(n, p.init) - p.init) / p.scale for n, (_, p) in zip(self.names, self.params)])
 
+    def _nominal_plant(self, over: dict) -> tuple[Plant, dict]:
+        """(the base plant with the nominal overrides ``over``, its params_dict), remembered for the last few
+        distinct overrides: a Jacobian over a table's knots builds the same nominal plant for every column."""
+        cache = self.__dict__.setdefault("_plants", {})
+        key = tuple(sorted(over.items()))
+        if key not in cache:
+            if len(cache) >= 4:
+                cache.pop(next(iter(cache)))
+            plant = self.base.with_params(over) if over else self.base
+            cache[key] = (plant, plant.params_dict())
+        return cache[key]
+
     def build(self, x) -> tuple[Plant, SensorModel]:
         vals = self.values(x)
         over = {}
-        base_pd = self.base.params_dict()
+        base_pd = self._nominal_plant({})[1]
         for _, p in self.params:
             if p.name in vals and "." in p.name and p.name.split(".")[0] in ("friction", "spring", "drive", "stops", "rotor"):
                 v = vals[p.name]
                 over[p.name] = v
                 for k in p.follows:
                     over[k] = base_pd[k] * v / p.init
-        plant = self.base.with_params(over) if over else self.base
-        pd = plant.params_dict()
+        plant, pd = self._nominal_plant(over)
         effects = []
         sensor = {}
         for c in self.candidates:
