@@ -15,6 +15,12 @@ One round:
               episodes; a candidate that bends to such drift wins a little held-out error on a clean
               recording but barely changes its RMS); otherwise stop: nothing in the library explains it
 Rounds repeat (two or more concurrent effects) while the remaining residual is significant.
+
+Closed loops (``persistent``: disturbance.py). A loop hides an effect in the angle, not in the current it had
+to apply, so a coil heating or a flux loss can leave the angle's held-out error and RMS as they were while the
+current residual carries a persistent structure. Where the current model has one and no candidate passes the
+held-out gain, the screened candidates (dBIC < -BIC_MIN) are tried in order of dBIC, and one is accepted when
+its full fit removes the structure (the same test that found it); the angle's RMS gain is not required then.
 Candidates run in a process pool (fork) when ``jobs > 1``.
 """
 from __future__ import annotations
@@ -220,8 +226,9 @@ def _tell_apart(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, g
     return evidence
 
 
-def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int):
-    """Step 3: the best candidate whose full fit simulates and lowers the angle RMS by RMS_MIN_GAIN.
+def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolves=None):
+    """Step 3: the best candidate whose full fit simulates and lowers the angle RMS by RMS_MIN_GAIN (or, with
+    ``resolves`` (FitResult -> bool), whose full fit passes it: a closed loop's persistent structure removed).
     Returns (its id, held-out gain, full fit), or None."""
     active = tuple(c.id for c in cur.spec.candidates)
     full = None
@@ -231,6 +238,13 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int):
             ctx.skip(c, rnd, r)
             continue
         full = F.FitResult(fr.spec, *r)
+        if resolves is not None:
+            if resolves(full):
+                ctx.log(f"  {c}: removes the persistent structure of the closed loop's current residual")
+                return c, g, full
+            ctx.log(f"  {c}: leaves the persistent structure: not accepted")
+            full = None
+            continue
         ratio = angle_rms_ratio(full, cur, ctx.data)
         if ratio > 1.0 - RMS_MIN_GAIN:
             ctx.log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f}): "
@@ -245,8 +259,10 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int):
 
 
 def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, significant, max_effects: int = 3,
-           progress=None, log=print, skipped: list | None = None) -> tuple[F.FitResult, list]:
+           progress=None, log=print, skipped: list | None = None, persistent=None) -> tuple[F.FitResult, list]:
     """Greedy forward selection of effects; returns the final fit and the accepted steps in order.
+    ``persistent`` (FitResult -> bool): whether a model leaves a closed loop's persistent structure (module
+    docstring, "Closed loops"); None: the angle's held-out and RMS gains alone decide.
     A candidate whose model cannot be simulated is left out and appended to ``skipped`` as
     {"id", "round", "reason"} (the report says so)."""
     steps = []
@@ -278,12 +294,19 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
             break
         cv0, gains = val
         cv_gain = {c: g for g, _, c, _ in gains}
-        gains = [g for g in gains if g[0] >= CV_MIN_GAIN]
-        if not gains:
+        passing = [g for g in gains if g[0] >= CV_MIN_GAIN]
+        resolves = None
+        if not passing and gains and persistent is not None and persistent(cur):
+            passing = sorted(gains, key=lambda s: s[1])          # by dBIC: the current's fit decides
+            resolves = (lambda fr: not persistent(fr))
+            evidence = None
+        elif not passing:
             break
-        gains.sort(key=lambda s: -s[0])
-        evidence = _tell_apart(ctx, cur, ref, screened, gains, cv_gain, cv0, rnd)
-        acc = _accept(ctx, cur, gains, evidence, rnd)
+        else:
+            passing.sort(key=lambda s: -s[0])
+            evidence = _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd)
+        gains = passing
+        acc = _accept(ctx, cur, gains, evidence, rnd, resolves)
         if acc is None:
             break
         c, g, full = acc
