@@ -180,6 +180,7 @@ def main(argv=None):
     ap.add_argument("--bandwidths", default="0,210", help="observer bandwidths [rad/s]; 0: the replay")
     ap.add_argument("--residual", default="auto", choices=("auto", "replay", "observer"), help="diagnose mode")
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--verbose", action="store_true", help="diagnose mode: the diagnosis's own log")
     ap.add_argument("--out", default=None, help="append one JSON line per case to this file")
     a = ap.parse_args(argv)
     cases = [c for c in a.cases.split(",") if c]
@@ -203,12 +204,12 @@ def main(argv=None):
                          f"{'SIG' if s['significant'] else 'ok'} top {max(s['groups'], key=s['groups'].get)}"
                          for s in row["structure"])
         else:
-            res = diagnose([rec], options=Options(plant=base, jobs=a.jobs, progress=False, verbose=False,
+            res = diagnose([rec], options=Options(plant=base, jobs=a.jobs, progress=False, verbose=a.verbose,
                                                   residual=a.residual))
             rep = res.report
             ids = [e["id"] for e in rep["effects"]]
             row.update(verdict=rep["verdict"], effects=ids, loop=rep["loop"],
-                       named_first=(not ids) if fam is None else bool(ids) and ids[0] == fam,
+                       named_first=(not ids) if fam is None else bool(ids) and ids[0] == fam.split("@")[0],
                        rms_before=rep["rms_before_deg"], rms_after=rep["rms_after_deg"],
                        noise=rep["noise_floor_deg"], cpu_s=rep.get("cpu_s"),
                        persistent=rep.get("persistent_structure"))

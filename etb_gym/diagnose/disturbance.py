@@ -46,6 +46,7 @@ from .measurement import smooth
 ANGLE_KNOTS = 16      # hat functions over the visited angle range
 W_SIGN_DEG_S = 20.0   # speed [deg/s] over which the direction feature tanh(omega / W) turns
 Z_DETECT = 8.0        # z-score of the current residual's explained sum of squares above which it counts (measured)
+RESOLVE_SHARE = 0.3   # a candidate accounts for a structure when it leaves at most this share of its z (or none)
 MIN_SAMPLES = 400
 
 
@@ -185,3 +186,15 @@ def persistent_mismatch(data, plant, sensor) -> list:
 
 def detected(structures: list) -> bool:
     return any(s.significant for s in structures)
+
+
+def current_z(structures: list) -> float:
+    """The largest z of the current residuals' structures (0.0 without any)."""
+    return max([s.z for s in structures if s.kind == "current"], default=0.0)
+
+
+def resolved(z_before: float, z_after: float) -> bool:
+    """Does a model that leaves ``z_after`` account for the structure ``z_before`` of the model it extends?
+    Yes when nothing significant is left or at most RESOLVE_SHARE of it: a candidate whose formula is not the
+    rig's shape (a heating time constant, a flux profile) removes most of a strong structure, not all of it."""
+    return z_after <= Z_DETECT or z_after <= RESOLVE_SHARE * z_before

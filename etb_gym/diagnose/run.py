@@ -279,8 +279,8 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
             model = fr.spec.build(fr.x)
             return significant_mismatch(data, angle_residuals_deg(simulate(*model, data), data), *model)
 
-        def persistent(fr: F.FitResult) -> bool:      # a closed loop's current residual (disturbance.py)
-            return D.detected(D.persistent_mismatch(data, *fr.spec.build(fr.x)))
+        def persistent(fr: F.FitResult) -> float:     # a closed loop's current residual (disturbance.py)
+            return D.current_z(D.persistent_mismatch(data, *fr.spec.build(fr.x)))
 
         sig0 = significant_mismatch(data, res0, *spec0.build(nominal.x))
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
