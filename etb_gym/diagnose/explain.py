@@ -21,7 +21,7 @@ to apply, so a coil heating or a flux loss can leave the angle's held-out error 
 current residual carries a persistent structure. Where the current model has one and no candidate passes the
 held-out gain, the screened candidates (dBIC < -BIC_MIN) are tried in order of dBIC, and one is accepted when
 its full fit accounts for the structure (disturbance.resolved: the same statistic that found it, at most
-RESOLVE_SHARE of its z left). While such a structure stands, a candidate that accounts for it is accepted
+RESOLVE_SHARE = half of its z left). While such a structure stands, a candidate that accounts for it is accepted
 without the angle's RMS gain (the loop keeps the angle where it was), and the next candidates are tried
 when one does not.
 Candidates run in a process pool (fork) when ``jobs > 1``.
@@ -295,7 +295,10 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         z_cur = persistent(cur) if persistent is not None else 0.0
         resolves = None
         if z_cur > disturbance.Z_DETECT:        # a closed loop's current residual: its structure can decide
-            resolves = (lambda fr, z=z_cur: disturbance.resolved(z, persistent(fr)))
+            def resolves(fr, z=z_cur):
+                z_new = persistent(fr)
+                ctx.log(f"  the current residual's persistent structure: z {z:.1f} -> {z_new:.1f}")
+                return disturbance.resolved(z, z_new)
         if passing:
             passing.sort(key=lambda s: -s[0])
             evidence = _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd)
