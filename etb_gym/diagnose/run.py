@@ -275,14 +275,16 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         res0 = angle_residuals_deg(simulate(*spec0.build(nominal.x), data), data)
         lap("calibrate")
 
-        def significant(fr: F.FitResult) -> bool:
-            model = fr.spec.build(fr.x)
-            return significant_mismatch(data, angle_residuals_deg(simulate(*model, data), data), *model)
-
         def persistent(fr: F.FitResult) -> float:     # a closed loop's current residual (disturbance.py)
             return D.current_z(D.persistent_mismatch(data, *fr.spec.build(fr.x)))
 
-        sig0 = significant_mismatch(data, res0, *spec0.build(nominal.x))
+        z0 = persistent(nominal)
+
+        def significant(fr: F.FitResult) -> bool:
+            model = fr.spec.build(fr.x)
+            return significant_mismatch(data, angle_residuals_deg(simulate(*model, data), data), *model, z_ref=z0)
+
+        sig0 = significant(nominal)
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
         shaped = None
         if sig0:
