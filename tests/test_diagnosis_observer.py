@@ -129,6 +129,9 @@ def test_persistent_structure_statistic_is_null_on_noise_and_large_on_a_feature_
     biased = D.structure(noise + 0.3 * groups["drift"][:, 0], groups, "current")
     assert biased.z > 3 * D.Z_DETECT and biased.significant and biased.hint == "drift"
     assert not D.structure(noise + 0.3 * groups["drift"][:, 0], groups, "angle").significant   # a hint only
+    # accounted for: nothing significant left, or at most RESOLVE_SHARE of the structure the model extends
+    assert D.resolved(178.0, 74.0) and D.resolved(14.4, 5.0) and D.resolved(9.0, D.Z_DETECT)
+    assert not D.resolved(178.0, 100.0) and not D.resolved(20.0, 20.0)
     assert D.structure(noise[:100], {k: g[:100] for k, g in groups.items()}, "current") is None   # too short
     with pytest.raises(ValueError, match="samples"):
         D.structure(noise[:100], groups, "current")
