@@ -29,8 +29,9 @@ its correlation (tau: fit.integrated_time of what is left), as a z-score against
 A recording scored by the observer has a *persistent mismatch* when the current residual's z exceeds
 Z_DETECT. Only the current counts (measured, docs/diagnosis.md "Closed loop: persistent structure"): on clean
 closed loops (3B and random nameplates; the default PID, the PID without friction compensation, a stiff PID)
-its z stayed within -1.5..1.6, while the angle innovation's reached 15-23 (a misplaced stick-slip transient
-is a structure in angle and current level too), as high as the concealed effects' (17-25). The angle
+its z stayed within -1.5..2.5 (10 recordings), while the angle innovation's reached 15-24 on 3 of them (a
+stick-slip transient that the calibrated friction places a little differently leaves a structure over angle
+and current level), as high as the concealed effects' (17-25). The angle
 innovation's structure is still reported (which feature group carries it: a hint), not used to decide.
 Without a recorded current nothing changes (the moving-RMS test alone decides).
 """
