@@ -147,6 +147,12 @@ def main(argv=None) -> int:
         ap.error(f"--models {bad}: expected models among {list(MODELS)}")
     if any(n < 1 for n in a.substeps) or sorted(set(a.substeps)) != a.substeps:
         ap.error(f"--substeps {a.substeps}: expected increasing integers >= 1")
+    from .integrate import substeps_used
+
+    low = substeps_used(1e-3, 1)
+    if a.substeps[0] < low:
+        ap.error(f"--substeps {a.substeps}: the stepper takes at least {low} substeps per 1 ms control period "
+                 f"(h_max = integrate.H_MAX_S, docs/model.md sec. 9): expected counts >= {low}")
     from tqdm import tqdm
 
     jobs = [(m.upper(), mode, case) for mode in a.modes for case in a.cases for m in a.models]

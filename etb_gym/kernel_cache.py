@@ -28,7 +28,7 @@ from .jit import HAVE_NUMBA, py_func
 def kernel_digest(components) -> str:
     h = hashlib.sha256()
     for c in components:
-        for fn in (c.kernel, c.advance, c.carry, c.edges, c.plausible, c.rate):
+        for fn in (c.kernel, c.advance, c.carry, c.edges, c.plausible, c.rate, c.damping):
             if fn is None:
                 continue
             f = py_func(fn)

@@ -187,6 +187,8 @@ def _read_csv(path: Path) -> dict:
         for c, (h, v) in enumerate(zip(header, row)):
             v = v.strip()
             try:
+                if "_" in v:            # Python's float() reads "6_0" as 60: not a decimal number in a CSV
+                    raise ValueError(v)
                 cols[c][r] = float(v) if v else math.nan
             except ValueError:
                 if comma_decimal and v.count(",") == 1 and _is_number(v.replace(",", ".")):
@@ -198,6 +200,8 @@ def _read_csv(path: Path) -> dict:
 
 
 def _is_number(s: str) -> bool:
+    if "_" in s:
+        return False
     try:
         float(s)
         return True
@@ -330,7 +334,8 @@ def _check_rows(source, named, kt, n):
         if a is None:
             continue
         if a.size != n:
-            raise RecordingError(f"{source}: column {k!r} has {a.size} rows: expected {n} like {kt!r}")
+            raise RecordingError(f"{source}: column {k!r} has {a.size} rows but {kt!r} has {n}: expected the same "
+                                 f"number of rows in every column")
         bad = ~np.isfinite(a)
         if bad.any():
             r = int(np.argmax(bad))
@@ -370,7 +375,9 @@ def _check_angle(source, ka, ang, kv, volt):
     if hi - lo < 1.7 and -0.05 <= lo and hi <= 1.7:
         raise RecordingError(f"{source}: column {ka!r}: values span only {lo:.3g}..{hi:.3g}: this looks like a 0..1 "
                              f"fraction or radians, expected the plate angle in degrees")
-    if hi - lo < 5.0 and 0.0 <= lo and hi <= 5.5 and not (hi - lo < 2.0 and abs(np.median(ang) - 3.0) < 1.0):
+    # a 0.5-4.5 V sensor track that moved over a good part of the stroke; a plate that barely moved (span under
+    # 2 deg: resting at a limp-home of 2-8 deg, held at the closed stop, small steps near it) reads in degrees
+    if 2.0 <= hi - lo < 5.0 and 0.0 <= lo and hi <= 5.5:
         raise RecordingError(f"{source}: column {ka!r}: values span only {lo:.3g}..{hi:.3g}: this looks like a sensor "
                              f"voltage (0-5 V), expected the plate angle in degrees")
     if lo < -30 or hi > 120:

@@ -78,6 +78,33 @@ def flow_blocks(components, lay, cv: Carries):
     return relax_block, save_half, finish
 
 
+def damping_blocks(components, lay, cv: Carries):
+    """omega's update in substep's midpoint rule, (damp_set, damp_mid, damp_end): with components that declare a
+    ``damping`` D (components/base.py), the exponential midpoint step for the linear part -D*omega/J where
+    w = h D / J > RHO_DAMP (factors fa = phi1(-w/2), fb = phi1(-w), fq = 1 - exp(-w), phi1(z) = (e^z - 1)/z:
+    exact on domega/dt = -D omega / J + const); elsewhere fa = fb = 1, fq = 0, the plain explicit midpoint to the
+    bit (x * 1.0 and x + 0.0 are exact). Without dampings: the plain explicit midpoint."""
+    plain = ("x[1] = omega + hh * dx[1]", "omega = omega + h * dx[1]")
+    terms = []
+    for k, c in enumerate(components):
+        if c.damping is None:
+            continue
+        (s0, s1), (p0, p1) = lay.state_slices[k], lay.param_slices[k]
+        ck = f", c{k}" if k in cv.carried else ""
+        terms.append(f"v{k}(phi, omega, i, x[{s0}:{s1}], P[{p0}:{p1}]{ck})")
+    if not terms:
+        return ("",) + plain
+    damp_set = (f"    wd = h * ({' + '.join(terms)}) / P[0]\n"
+                "    fa = 1.0\n    fb = 1.0\n    fq = 0.0\n"
+                "    if wd > RHO_DAMP:\n"
+                "        ea = math.exp(-0.5 * wd)\n"
+                "        fq = 1.0 - ea * ea\n"
+                "        fa = (1.0 - ea) / (0.5 * wd)\n"
+                "        fb = fq / wd\n")
+    return (damp_set, "dm = hh * fa * dx[1]\n    x[1] = omega + dm",
+            "omega = omega + h * fb * dx[1] + fq * dm")
+
+
 def contact_functions(components, lay):
     """Bodies of edges (the first edge crossing), rates (the largest impact rate; else the most negative rate, that
     of the stiffest slow contact) and physical's plausibility checks: (edges_block, rate_block, plaus_block)."""

@@ -98,9 +98,80 @@ def nominal_row(rec, base, bandwidth: float) -> dict:
             "significant": bool(significant_residual(data, r))}
 
 
+class _Captured(Exception):
+    pass
+
+
+def proof_recording(spec: str, duration_s: float, workdir: str):
+    """The recording (and the plant the tool is given) of a proof case ``FAMILY[@SHAPE]:SEED[:random]``,
+    made exactly as ``proof.run_case`` makes it (its diagnosis is not run)."""
+    from pathlib import Path
+
+    from etb_gym.diagnose import proof
+    from etb_gym.recordings import load_recording
+    fam, seed, *rest = spec.split(":")
+    nameplate = rest[0] if rest else "3B"
+    args = proof._parser().parse_args(["--duration", str(duration_s), "--jobs", "1", "--nameplate", nameplate])
+    got = {}
+
+    def capture(paths, out=None, options=None):
+        got["rec"], got["options"] = load_recording(paths[0]), options
+        raise _Captured
+
+    real = proof.diagnose
+    proof.diagnose = capture
+    try:
+        proof.run_case(fam, int(seed), args, str(Path(workdir)))
+    except _Captured:
+        pass
+    finally:
+        proof.diagnose = real
+    opts = got["options"]
+    return got["rec"], opts.plant if opts.plant is not None else make_plant("3B")
+
+
+def structure_row(rec, base) -> dict:
+    """The calibrated nominal model as run.diagnose calibrates it (auto residual), its observer residual's
+    significance today (result.significant_residual) and its persistent structure (disturbance.py)."""
+    from etb_gym.diagnose import disturbance as D
+    from etb_gym.diagnose.model import restart_view
+    from etb_gym.diagnose.run import _base_and_data, polish
+    t0 = time.process_time()
+    b, data = _base_and_data(Options(plant=base.replace(control_period_s=rec.dt_s)), [rec])
+    spec = Spec(b)
+    nom = polish(F.calibrate(spec, restart_view(data), max_nfev=40), data)
+    numerical_tolerance(spec, nom.x, data)
+    pred = simulate(*spec.build(nom.x), data)
+    r = angle_residuals_deg(pred, data)
+    rd = data.recs[0]
+    st = D.persistent(rd, pred[0]) if rd.residual == "observer" else []
+    return {"residual": rd.residual, "rms_over_noise": float(math.sqrt(np.mean(r[0] ** 2)) / rd.noise_deg),
+            "windows": len(L.windows(rec.t_s, r[0], rd.noise_deg, rd.tol_deg)),
+            "significant_today": bool(significant_residual(data, r)),
+            "structure": [s.as_dict() for s in st], "cpu_s": round(time.process_time() - t0, 2)}
+
+
+def _cases(a, cases):
+    """(case, seed, recording, plant given to the tool, family, effect size) per case to run."""
+    if a.proof:
+        import tempfile
+        for spec in a.proof:
+            with tempfile.TemporaryDirectory() as tmp:
+                rec, base = proof_recording(spec, a.duration, tmp)
+            fam = spec.split(":")[0]
+            yield spec, int(spec.split(":")[1]), rec, base, None if fam == "clean" else fam, None
+        return
+    for case in cases:
+        for seed in range(a.first_seed, a.first_seed + a.seeds):
+            rec, base, truth, effects, sensor_kw, fam = make_case(case, seed, a.duration, a.noise)
+            yield case, seed, rec, base, fam, round(effect_size(rec, truth, effects, sensor_kw, a.noise), 2)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--mode", choices=("nominal", "diagnose"), default="nominal")
+    ap.add_argument("--mode", choices=("nominal", "diagnose", "structure"), default="nominal")
+    ap.add_argument("--proof", nargs="*", default=None, metavar="FAMILY@SHAPE:SEED[:random]",
+                    help="proof cases (proof.run_case's recordings) instead of --cases")
     ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated, of {', '.join(CASES)}")
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--first-seed", type=int, default=0)
@@ -109,6 +180,7 @@ def main(argv=None):
     ap.add_argument("--bandwidths", default="0,210", help="observer bandwidths [rad/s]; 0: the replay")
     ap.add_argument("--residual", default="auto", choices=("auto", "replay", "observer"), help="diagnose mode")
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--verbose", action="store_true", help="diagnose mode: the diagnosis's own log")
     ap.add_argument("--out", default=None, help="append one JSON line per case to this file")
     a = ap.parse_args(argv)
     cases = [c for c in a.cases.split(",") if c]
@@ -117,32 +189,36 @@ def main(argv=None):
         ap.error(f"unknown case(s) {bad}: expected some of {', '.join(CASES)}")
     bws = [float(b) for b in a.bandwidths.split(",")]
     out = open(a.out, "a") if a.out else None
-    for case in cases:
-        for seed in range(a.first_seed, a.first_seed + a.seeds):
-            rec, base, truth, effects, sensor_kw, fam = make_case(case, seed, a.duration, a.noise)
-            row = {"case": case, "seed": seed, "family": fam,
-                   "size": round(effect_size(rec, truth, effects, sensor_kw, a.noise), 2)}
-            t0 = time.perf_counter()
-            if a.mode == "nominal":
-                for bw in bws:
-                    row[f"bw{bw:g}"] = nominal_row(rec, base, bw)
-                txt = " | ".join(f"{k}: {v['rms_over_noise']:.2f}x w{v['windows']} {'SIG' if v['significant'] else 'ok'}"
-                                 for k, v in row.items() if k.startswith("bw"))
-            else:
-                res = diagnose([rec], options=Options(plant=base, jobs=a.jobs, progress=False, verbose=False,
-                                                      residual=a.residual))
-                rep = res.report
-                ids = [e["id"] for e in rep["effects"]]
-                row.update(verdict=rep["verdict"], effects=ids, loop=rep["loop"],
-                           named_first=(not ids) if fam is None else bool(ids) and ids[0] == fam,
-                           rms_before=rep["rms_before_deg"], rms_after=rep["rms_after_deg"],
-                           noise=rep["noise_floor_deg"])
-                txt = f"{row['verdict']:16s} {ids} named_first={row['named_first']}"
-            row["time_s"] = round(time.perf_counter() - t0, 1)
-            print(f"{case:16s} s{seed} size {row['size']:6.1f}  {txt}  ({row['time_s']} s)", flush=True)
-            if out:
-                out.write(json.dumps(row) + "\n")
-                out.flush()
+    for case, seed, rec, base, fam, size in _cases(a, cases):
+        row = {"case": case, "seed": seed, "family": fam, "size": size}
+        t0 = time.perf_counter()
+        if a.mode == "nominal":
+            for bw in bws:
+                row[f"bw{bw:g}"] = nominal_row(rec, base, bw)
+            txt = " | ".join(f"{k}: {v['rms_over_noise']:.2f}x w{v['windows']} {'SIG' if v['significant'] else 'ok'}"
+                             for k, v in row.items() if k.startswith("bw"))
+        elif a.mode == "structure":
+            row.update(structure_row(rec, base))
+            txt = f"{row['residual']} {row['rms_over_noise']:.2f}x {'SIG' if row['significant_today'] else 'ok'} " + \
+                " ".join(f"{s['kind']}: z {s['z']:.1f} share {s['share_of_noise']:.2f} "
+                         f"{'SIG' if s['significant'] else 'ok'} top {max(s['groups'], key=s['groups'].get)}"
+                         for s in row["structure"])
+        else:
+            res = diagnose([rec], options=Options(plant=base, jobs=a.jobs, progress=False, verbose=a.verbose,
+                                                  residual=a.residual))
+            rep = res.report
+            ids = [e["id"] for e in rep["effects"]]
+            row.update(verdict=rep["verdict"], effects=ids, loop=rep["loop"],
+                       named_first=(not ids) if fam is None else bool(ids) and ids[0] == fam.split("@")[0],
+                       rms_before=rep["rms_before_deg"], rms_after=rep["rms_after_deg"],
+                       noise=rep["noise_floor_deg"], cpu_s=rep.get("cpu_s"),
+                       persistent=rep.get("persistent_structure"))
+            txt = f"{row['verdict']:16s} {ids} named_first={row['named_first']} cpu {rep.get('cpu_s', 0):.1f} s"
+        row["time_s"] = round(time.perf_counter() - t0, 1)
+        print(f"{case:24s} s{seed} size {size if size is not None else '-'}  {txt}  ({row['time_s']} s)", flush=True)
+        if out:
+            out.write(json.dumps(row) + "\n")
+            out.flush()
     return 0
 
 

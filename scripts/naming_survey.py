@@ -15,6 +15,7 @@ Rows go to --out (JSON lines, one per case, appended whole as each case finishes
     python scripts/naming_survey.py --out out/survey_after.jsonl --redo-misses out/survey_before.jsonl
     python scripts/naming_survey.py --out out/survey_after.jsonl --same-as out/survey_before.jsonl
     python scripts/naming_survey.py --out out/s.jsonl --seed-index 1 2 --loops closed --keep out/s_reports
+    python scripts/naming_survey.py --out out/r.jsonl --nameplates random --loops open --rotate --seed-index 3 4 5
 
 Rows keep the diagnosis's CPU time (report.json ``cpu_s``; the summary scales it to a 10 s recording) and, on
 closed loops, the effect's footprint as the observer residual sees it (``effect_size_observer``: the replay
@@ -42,17 +43,23 @@ KEEP = ("family", "seed", "nameplate", "closed", "loop_detected", "verdict", "ef
         "heldout_rms_before", "heldout_rms_after", "true_noise", "time_s", "cpu_s", "skipped")
 
 
-def plan(families, shapes, nameplates, loops, seed_indices):
+def plan(families, shapes, nameplates, loops, seed_indices, rotate=False):
+    """Every (family, shape, nameplate, loop, seed index); ``rotate``: one shape and one seed index per family
+    instead of all of them, taken in turn from ``shapes`` and ``seed_indices`` by the family's position (so
+    a one-case-per-family survey still covers both shapes and spreads its seeds)."""
     from etb_gym.diagnose.proof_truth import FAMILIES, OUTSIDE
     cases = []
-    for fam in families:
+    for j, fam in enumerate(families):
         if fam not in FAMILIES:
             raise SystemExit(f"--families: {fam!r} is not a proof family; expected some of {', '.join(FAMILIES)}")
         ks = [0] if (fam == CLEAN or fam in OUTSIDE) else [k for k in shapes if k]
+        sis = seed_indices
+        if rotate:
+            ks, sis = [ks[j % len(ks)]], [seed_indices[j % len(seed_indices)]]
         for k in ks:
             for np_ in nameplates:
                 for loop in loops:
-                    for si in seed_indices:
+                    for si in sis:
                         seed = 2 * si + (1 if loop == "closed" else 0)
                         cases.append({"case": fam if k == 0 else f"{fam}@{k}", "nameplate": np_, "seed": seed,
                                       "loop": loop})
@@ -225,6 +232,8 @@ def main(argv=None) -> int:
     ap.add_argument("--loops", nargs="+", default=["open", "closed"], choices=["open", "closed"])
     ap.add_argument("--seed-index", type=int, nargs="+", default=[0],
                     help="k ...: loop open is seed 2k, closed 2k+1 (default 0)")
+    ap.add_argument("--rotate", action="store_true",
+                    help="one case per family: its shape and seed index taken in turn from --shapes and --seed-index")
     ap.add_argument("--duration", type=float, default=6.0, help="recording length [s] (default 6)")
     ap.add_argument("--jobs", type=int, default=1, help="cases run in parallel, one core each (default 1)")
     ap.add_argument("--redo-misses", metavar="ROWS", help="only the cases that missed their target (or crashed) in ROWS")
@@ -246,7 +255,7 @@ def main(argv=None) -> int:
         ap.error(f"--jobs = {a.jobs} is invalid: expected 1 or more")
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    cases = plan(a.families, a.shapes, a.nameplates, a.loops, a.seed_index)
+    cases = plan(a.families, a.shapes, a.nameplates, a.loops, a.seed_index, a.rotate)
     if a.redo_misses:
         prev = {key(r): r for r in read(Path(a.redo_misses))}
         cases = [c for c in cases if key(c) in prev and counted(prev[key(c)]) and not ok(prev[key(c)])]

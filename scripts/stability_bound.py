@@ -4,7 +4,8 @@
 substeps h = dt / n with the cap H_MAX_S lifted; a run survives when the state stays finite and no end stop
 is penetrated by more than 2 deg. Plain path (no compiles: one substep length per run). Since impacts and slow
 stop contacts are cut into pieces (docs/model.md sec. 9) every model passes at 250-500 us: the bound that bites
-is accuracy against the reference (LuGre's bristle damping, 273 us), which this survival test does not see.
+is accuracy against the reference, which this survival test does not see (LuGre's bristle damping bounded it at
+273 us until the stepper took it exponentially; h_max is now 333 us, docs/model.md sec. 9).
 
     python scripts/stability_bound.py --models 1A 1B 1C 3B --h-us 200 250 333 400 500
 """

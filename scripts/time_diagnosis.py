@@ -8,6 +8,10 @@ Cases (10 s recordings of model 3B with friction +-15 % / spring +-10 %, 0.01 de
                                   its plant file (friction and spring 10-20 % off), with a Gaussian airflow-like bump
                                   (-0.04 N m at 45 deg, 15 deg wide): not the candidate's polynomial
 
+Every case also gets a held-out recording of the same truth with the other loop type (seed 99; closed loop under the
+PID designed on the plant file, or on the truth without its effect), on which the exported twin is scored
+(``heldout_over_noise``: its RMS over the held-out file's noise floor, proof.score_heldout).
+
 Every case is diagnosed once with jobs=1 (``--jobs``); the report's ``elapsed_breakdown_s`` gives the time of
 each stage, so the time without the refine stage (shapes, outside the catalogue) is the total minus ``refine``
 from the same run. One JSON line per case (appended to ``--out``) with the times and what the diagnosis found;
@@ -30,8 +34,8 @@ import numpy as np
 CASES = ("clean_open", "clean_closed", "coil_heating", "cogging", "airflow_rig")
 
 
-def rig(seed: int = 0, duration_s: float = 10.0):
-    """(recording, plant file's plant) of the airflow_rig case."""
+def rig(seed: int = 0, duration_s: float = 10.0, truth_out: list | None = None):
+    """(recording, plant file's plant) of the airflow_rig case (``truth_out`` gets the truth and the controller)."""
     from etb_gym.diagnose.proof import _controller
     from etb_gym.diagnose.shapes_eval import AngleShape
     from etb_gym.diagnose.synthetic import make_recording, nameplate_file_plant, random_nameplate
@@ -40,12 +44,15 @@ def rig(seed: int = 0, duration_s: float = 10.0):
     plant_file = nameplate_file_plant(truth, rng)
     truth = truth.replace(effects=(AngleShape(peak_Nm=-0.04, centre_rad=math.radians(45.0),
                                               width_rad=math.radians(15.0), step=0.0),))
+    ctrl = _controller(plant_file)
     rec = make_recording(truth, np.random.default_rng(5 + seed), duration_s=duration_s, closed=True, noise_deg=0.01,
-                         name="airflow_rig.csv", controller=_controller(plant_file))
+                         name="airflow_rig.csv", controller=ctrl)
+    if truth_out is not None:
+        truth_out += [truth, ctrl]
     return rec, plant_file
 
 
-def recording(case: str, seed: int = 0, duration_s: float = 10.0):
+def recording(case: str, seed: int = 0, duration_s: float = 10.0, truth_out: list | None = None):
     from etb_gym.components import effects as fx
     from etb_gym.diagnose.shapes_eval import Cogging, truth_plant
     from etb_gym.diagnose.synthetic import make_recording
@@ -54,17 +61,28 @@ def recording(case: str, seed: int = 0, duration_s: float = 10.0):
               "coil_heating": fx.CoilHeating(heat_capacity_J_per_K=10.0, thermal_resistance_K_per_W=8.0),
               "cogging": Cogging(amplitude_Nm=0.015, period_rad=math.radians(20.0), phase_rad=0.1, waveform=0.0)}[case]
     truth = truth_plant(rng, effect)
+    if truth_out is not None:
+        truth_out += [truth, None]
     return make_recording(truth, np.random.default_rng(int(rng.integers(1 << 30))), duration_s=duration_s,
                           closed=case == "clean_closed", noise_deg=0.01, name=f"{case}.csv")
 
 
 def run(case: str, jobs: int = 1, seed: int = 0, duration_s: float = 10.0, profile: Path | None = None) -> dict:
     from etb_gym.diagnose.run import Options, diagnose
+    from etb_gym.diagnose.proof import _controller, score_heldout
+    from etb_gym.diagnose.synthetic import make_recording
     plant = None
+    truth = []
     if case == "airflow_rig":
-        rec, plant = rig(seed, duration_s)
+        rec, plant = rig(seed, duration_s, truth)
     else:
-        rec = recording(case, seed, duration_s)
+        rec = recording(case, seed, duration_s, truth)
+    truth, ctrl = truth
+    closed = case in ("clean_closed", "airflow_rig")
+    if not closed and ctrl is None:
+        ctrl = _controller(plant or truth.replace(effects=()))
+    held = make_recording(truth, np.random.default_rng(99), duration_s=duration_s, closed=not closed, noise_deg=0.01,
+                          name="heldout.csv", controller=ctrl if not closed else None)
     opts = Options(model="3B", plant=plant, jobs=jobs, progress=False, verbose=False)
     prof = None
     if profile is not None:
@@ -85,13 +103,16 @@ def run(case: str, jobs: int = 1, seed: int = 0, duration_s: float = 10.0, profi
     st = rep.get("elapsed_breakdown_s", {})
     outside = [u for u in rep["unexplained"] if u.get("outside_catalogue")]
     per = outside[0]["shape"]["angle"] if outside else {}
-    return {"case": case, "seed": seed, "jobs": jobs, "time_s": total, "cpu_s": cpu, "stages_s": st,
+    row = {"case": case, "seed": seed, "jobs": jobs, "time_s": total, "cpu_s": cpu, "stages_s": st,
             "time_without_refine_s": total - st.get("refine", 0.0),
             "verdict": rep["verdict"], "rms_after_deg": rep.get("rms_after_deg"),
             "noise_floor_deg": rep.get("noise_floor_deg"), "effects": [e["id"] for e in rep["effects"]],
             "shaped": [e["id"] for e in rep["effects"] if "shape" in e],
             "outside": outside[0]["id"] if outside else None,
             "period_deg": per.get("period_deg") if per.get("periodic") else None}
+    score_heldout(row, res, held)
+    row["heldout_over_noise"] = row["heldout_rms_after"] / row["heldout_noise"]
+    return row
 
 
 def main(argv=None):

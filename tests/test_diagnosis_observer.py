@@ -112,3 +112,43 @@ def test_proof_footprint_of_a_closed_loop_effect_as_the_observer_sees_it():
         size[residual] = float(np.max(moving_rms(a - b, 100)))
     assert 0.0 < size["observer"] < size["replay"], size
     assert effect_footprint(truth, rec, [], {}, residual="observer") is None
+
+
+def test_persistent_structure_statistic_is_null_on_noise_and_large_on_a_feature_shaped_bias():
+    """disturbance.structure: z about 0 on white noise, large on a small bias shaped like one feature group
+    (0.3 of the noise, which no moving-RMS window shows); the group carrying it is the hint."""
+    from etb_gym.diagnose import disturbance as D
+    rng = np.random.default_rng(0)
+    n = 4000
+    t = np.arange(n) * 1e-3
+    groups = {"offset": np.ones((n, 1)), "drift": ((t - t.mean()) / t.std())[:, None],
+              "angle": D._hats(30.0 + 20.0 * np.sin(2 * np.pi * 0.7 * t), 8)}
+    noise = rng.standard_normal(n)
+    null = D.structure(noise, groups, "current")
+    assert abs(null.z) < 4.0 and not null.significant
+    biased = D.structure(noise + 0.3 * groups["drift"][:, 0], groups, "current")
+    assert biased.z > 3 * D.Z_DETECT and biased.significant and biased.hint == "drift"
+    assert not D.structure(noise + 0.3 * groups["drift"][:, 0], groups, "angle").significant   # a hint only
+    # accounted for: nothing significant left, or at most RESOLVE_SHARE of the structure the model extends
+    assert D.resolved(178.0, 74.0) and D.resolved(14.4, 5.0) and D.resolved(9.0, D.Z_DETECT)
+    assert not D.resolved(178.0, 100.0) and not D.resolved(20.0, 20.0)
+    assert D.structure(noise[:100], {k: g[:100] for k, g in groups.items()}, "current") is None   # too short
+    with pytest.raises(ValueError, match="samples"):
+        D.structure(noise[:100], groups, "current")
+
+
+def test_closed_loop_current_residual_structure_tells_a_wrong_resistance_from_the_exact_model():
+    """disturbance.persistent_mismatch on a closed loop (default PID): a model whose resistance is 5 % off
+    leaves a persistent structure in its current residual, the truth's own model none; a replayed (open-loop)
+    recording is left to the replay's tests."""
+    from etb_gym.diagnose import disturbance as D
+    truth = truth_3b(5)
+    rec = make_recording(truth, np.random.default_rng(105), duration_s=2.0, closed=True, noise_deg=0.01,
+                         name="c.csv")
+    data = prepare([rec], 12.0, residual="observer")
+    own = D.persistent_mismatch(data, truth, SensorModel())
+    assert [s.kind for s in own] == ["angle", "current"] and not D.detected(own), [s.as_dict() for s in own]
+    R = truth.params_dict()["drive.resistance_ohm"]
+    off = D.persistent_mismatch(data, truth.with_params({"drive.resistance_ohm": 1.05 * R}), SensorModel())
+    assert D.detected(off) and off[1].significant and off[1].z > D.Z_DETECT, [s.as_dict() for s in off]
+    assert D.persistent_mismatch(prepare([rec], 12.0, residual="replay"), truth, SensorModel()) == []

@@ -14,7 +14,8 @@ from etb_gym.components.base import Component, Params
 from etb_gym.components.effects_electrical import CoilHeating
 from etb_gym.components.effects_friction import AngleDependentFriction, StribeckFriction
 from etb_gym.components.effects_mechanical import Backlash
-from etb_gym.components.friction import lugre_friction_advance, lugre_friction_kernel, lugre_stribeck
+from etb_gym.components.friction import (lugre_damping, lugre_friction_advance, lugre_friction_kernel,
+                                         lugre_stribeck)
 from etb_gym.integrate import FastPathUnavailableWarning
 from etb_gym.jit import HAVE_NUMBA, kernel
 
@@ -142,12 +143,18 @@ def _lugre_advance_recomputing(h, t, phi, omega, i, u, s, p):
     lugre_friction_advance(h, t, phi, omega, i, u, s, p, lugre_stribeck(phi, omega, i, p))
 
 
+@kernel
+def _lugre_damping_recomputing(phi, omega, i, s, p):
+    return lugre_damping(phi, omega, i, s, p, lugre_stribeck(phi, omega, i, p))
+
+
 class _LuGreRecomputing(LuGreFriction):
     """LuGre without a carry: kernel and advance each evaluate g(omega) themselves (the naive path)."""
 
     kind = ""                      # not registered
     kernel = staticmethod(_lugre_kernel_recomputing)
     advance = staticmethod(_lugre_advance_recomputing)
+    damping = staticmethod(_lugre_damping_recomputing)
     carry = None
 
 

@@ -67,3 +67,16 @@ def test_csv_errors_name_file_column_row(tmp_path):
         load_recording(p)
     with pytest.raises(RecordingError, match="unsupported file type"):
         load_recording(tmp_path / "x.txt") if (tmp_path / "x.txt").write_text("1") else None
+
+
+def test_plate_that_barely_moves_near_the_closed_stop_is_degrees():
+    """A plate held between the closed stop and a low limp-home (0.35-2.0 deg, a valid 3C rig recording the fuzz
+    found refused as a 0-5 V sensor voltage) reads in degrees; a sensor track over a good part of the stroke does
+    not."""
+    c = _cols()
+    n = c["angle_deg"].size
+    c["angle_deg"] = 0.35 + 1.65 * (0.5 + 0.5 * np.sin(np.linspace(0.0, 20.0, n)))
+    assert validate(c, source="rig.csv").angle_deg.max() <= 2.0 + 1e-12
+    c["angle_deg"] = 0.5 + 4.0 * (0.5 + 0.5 * np.sin(np.linspace(0.0, 20.0, n)))
+    with pytest.raises(RecordingError, match="sensor voltage"):
+        validate(c, source="rig.csv")

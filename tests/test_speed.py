@@ -51,7 +51,7 @@ def test_equal_accuracy_search_finds_the_fewest_substeps():
     assert n is not None and eq["rms_deg"] <= speed.EQUAL_ACCURACY_DEG
     fewer = [m for m in eq["tried"] if m < n]
     assert all(eq["tried"][m] > speed.EQUAL_ACCURACY_DEG for m in fewer)
-    assert n < 20          # the second-order stepper needs far fewer than the old stepper's 20 substeps
+    assert n <= 3          # the second-order stepper with the exponential bristle damping: 3 (0.037 deg), not 20
     assert n == substeps_used(1e-3, n)
 
 

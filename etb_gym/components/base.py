@@ -37,6 +37,14 @@ impact is integrated accurately at any substep. A contact as stiff but slow (a p
 return -sqrt(k/J): the stepper then cuts a substep only where h sqrt(k/J) > RHO_STIFF, into pieces the explicit
 midpoint rule is stable on (integrate.py, "Contacts").
 
+A component whose torque damps the shaft strongly (LuGre's bristle damping) declares
+``damping(phi, omega, i, s, p) -> N m s/rad`` (with a carry: ``c`` as the last argument): -dT/domega of its
+torque at (phi, omega, i) with its own states s frozen, on the side of the current direction of motion. Where
+h * (sum of the dampings) / J > RHO_DAMP the stepper integrates omega with an exponential midpoint step for that
+linear damping (exact on it at any h), elsewhere with the plain explicit midpoint (integrate.py, "Damping"). It
+must be the damping, not a bound on it: the exponential weights assume it (a D far above the true damping
+makes the step inaccurate, docs/model.md sec. 9).
+
 A component that knows where its physics ends declares ``plausible(phi, omega, i, supply_V, p) -> bool``
 (the end stops: the plate is not far beyond a stop; a drive: the coil current is not far beyond what the
 supply can drive). The stepper checks it at the end of every control period and reports False as it
@@ -160,6 +168,7 @@ class Component:
     edges: ClassVar[Any] = None       # optional edges(phi0, omega0, phi1, omega1, p) -> theta: see the module docstring
     plausible: ClassVar[Any] = None   # optional plausible(phi, omega, i, supply_V, p) -> bool: see the module docstring
     rate: ClassVar[Any] = None        # optional rate(phi, omega, J, p) -> 1/s: see the module docstring
+    damping: ClassVar[Any] = None     # optional damping(phi, omega, i, s, p) -> N m s/rad: see the module docstring
     description: ClassVar[str] = ""
 
     def __init_subclass__(cls, **kw):

@@ -14,6 +14,10 @@ z_ss = omega/a, so the stiff bristle state stays bounded at any speed and any st
 its *carry* (components/base.py): the stepper evaluates it once per substep, at the new velocity, for the
 bristle update and for the next substep's kernel, which sees that same velocity (the same bits as
 evaluating it in both).
+
+LuGre's bristle damping sigma1*dz/dt is the stiffest decaying mode of the shaft (2 sigma1/J = 7333 1/s right
+after a velocity reversal); it declares it as its ``damping`` (components/base.py), which the stepper takes
+exponentially where the substep is too long for the explicit rule (integrate.py, "Damping").
 """
 from __future__ import annotations
 
@@ -151,6 +155,19 @@ def lugre_friction_advance(h, t, phi, omega, i, u, s, p, g):
     s[0] = bristle_advance(s[0], omega, h, p[3], g)
 
 
+@kernel
+def lugre_damping(phi, omega, i, s, p, g):
+    """The damping of LuGre's torque for z frozen (components/base.py, ``damping``): -dT_f/domega =
+    sigma1*(1 - sigma0*sign(omega)*z/g) + sigma2 (g' neglected; sigma1 + sigma2 at omega = 0): 2 sigma1 + sigma2
+    right after a reversal (the bristles still deflected the old way), about sigma2 in steady sliding."""
+    sg = 0.0
+    if omega > 0.0:
+        sg = 1.0
+    elif omega < 0.0:
+        sg = -1.0
+    return p[4] * (1.0 - p[3] * sg * s[0] / g) + p[5]
+
+
 class LuGreFriction(Component):
     kind = "friction.lugre"
     role = "friction"
@@ -160,6 +177,7 @@ class LuGreFriction(Component):
     kernel = staticmethod(lugre_friction_kernel)
     advance = staticmethod(lugre_friction_advance)
     carry = staticmethod(lugre_stribeck)     # g(omega), computed once per substep (components/base.py)
+    damping = staticmethod(lugre_damping)    # the bristle damping, up to 2 sigma1 (integrate.py, "Damping")
     description = "3: LuGre friction (sec. 5.3, eqs. 26-28)"
 
     def rest_state(self, s, held_torque_Nm):

@@ -15,6 +15,15 @@ One round:
               episodes; a candidate that bends to such drift wins a little held-out error on a clean
               recording but barely changes its RMS); otherwise stop: nothing in the library explains it
 Rounds repeat (two or more concurrent effects) while the remaining residual is significant.
+
+Closed loops (``persistent``: disturbance.py). A loop hides an effect in the angle, not in the current it had
+to apply, so a coil heating or a flux loss can leave the angle's held-out error and RMS as they were while the
+current residual carries a persistent structure. Where the current model has one and no candidate passes the
+held-out gain, the screened candidates (dBIC < -BIC_MIN) are tried in order of dBIC, and one is accepted when
+its full fit accounts for the structure (disturbance.resolved: the same statistic that found it, at most
+RESOLVE_SHARE = half of its z left). While such a structure stands, a candidate that accounts for it is accepted
+without the angle's RMS gain (the loop keeps the angle where it was), and the next candidates are tried
+when one does not.
 Candidates run in a process pool (fork) when ``jobs > 1``.
 """
 from __future__ import annotations
@@ -28,6 +37,7 @@ import numpy as np
 
 from ..plant import Plant
 from . import discriminate as D
+from . import disturbance
 from . import fit as F
 from .candidates import CANDIDATES
 from .model import Data, Spec
@@ -220,11 +230,11 @@ def _tell_apart(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, g
     return evidence
 
 
-def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int):
-    """Step 3: the best candidate whose full fit simulates and lowers the angle RMS by RMS_MIN_GAIN.
+def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolves=None):
+    """Step 3: the best candidate whose full fit simulates and lowers the angle RMS by RMS_MIN_GAIN, or, with
+    ``resolves`` (FitResult -> bool: a closed loop's persistent structure accounted for), passes ``resolves``.
     Returns (its id, held-out gain, full fit), or None."""
     active = tuple(c.id for c in cur.spec.candidates)
-    full = None
     for g, d, c, fr in gains:
         r = ctx.runner.map([("fit", ctx.base_dict, ctx.nominal, active + (c,), fr.x, FULL_NFEV, len(cur.x))])[0]
         if isinstance(r, Skipped):
@@ -232,21 +242,24 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int):
             continue
         full = F.FitResult(fr.spec, *r)
         ratio = angle_rms_ratio(full, cur, ctx.data)
-        if ratio > 1.0 - RMS_MIN_GAIN:
-            ctx.log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f}): "
-                    "not accepted")
-            if evidence is not None and c == evidence["winner"]:     # its formula falls short: the next
-                full = None
-                continue
-        break
-    if full is None or ratio > 1.0 - RMS_MIN_GAIN:
-        return None
-    return c, g, full
+        if ratio <= 1.0 - RMS_MIN_GAIN:
+            return c, g, full
+        if resolves is not None and resolves(full):
+            ctx.log(f"  {c}: angle RMS x{ratio:.2f}, but it accounts for the persistent structure of the closed "
+                    "loop's current residual: accepted")
+            return c, g, full
+        ctx.log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f})"
+                + (" and the current's persistent structure stays" if resolves is not None else "") + ": not accepted")
+        if resolves is None and not (evidence is not None and c == evidence["winner"]):
+            return None                     # (the physics' choice falling short lets the next one try)
+    return None
 
 
 def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, significant, max_effects: int = 3,
-           progress=None, log=print, skipped: list | None = None) -> tuple[F.FitResult, list]:
+           progress=None, log=print, skipped: list | None = None, persistent=None) -> tuple[F.FitResult, list]:
     """Greedy forward selection of effects; returns the final fit and the accepted steps in order.
+    ``persistent`` (FitResult -> float): the z of the persistent structure a model leaves in a closed loop's
+    current residual (module docstring, "Closed loops"); None: the angle's held-out and RMS gains alone decide.
     A candidate whose model cannot be simulated is left out and appended to ``skipped`` as
     {"id", "round", "reason"} (the report says so)."""
     steps = []
@@ -278,12 +291,24 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
             break
         cv0, gains = val
         cv_gain = {c: g for g, _, c, _ in gains}
-        gains = [g for g in gains if g[0] >= CV_MIN_GAIN]
-        if not gains:
+        passing = [g for g in gains if g[0] >= CV_MIN_GAIN]
+        z_cur = persistent(cur) if persistent is not None else 0.0
+        resolves = None
+        if z_cur > disturbance.Z_DETECT:        # a closed loop's current residual: its structure can decide
+            def resolves(fr, z=z_cur):
+                z_new = persistent(fr)
+                ctx.log(f"  the current residual's persistent structure: z {z:.1f} -> {z_new:.1f}")
+                return disturbance.resolved(z, z_new)
+        if passing:
+            passing.sort(key=lambda s: -s[0])
+            evidence = _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd)
+        elif resolves is not None:
+            passing = sorted(gains, key=lambda s: s[1])          # by dBIC: the current's fit decides
+            evidence = None
+        else:
             break
-        gains.sort(key=lambda s: -s[0])
-        evidence = _tell_apart(ctx, cur, ref, screened, gains, cv_gain, cv0, rnd)
-        acc = _accept(ctx, cur, gains, evidence, rnd)
+        gains = passing
+        acc = _accept(ctx, cur, gains, evidence, rnd, resolves)
         if acc is None:
             break
         c, g, full = acc

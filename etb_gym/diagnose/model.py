@@ -183,18 +183,29 @@ class Spec:
         """Normalized x from known physical values (others at their start)."""
         return np.array([(values.get(n, p.init) - p.init) / p.scale for n, (_, p) in zip(self.names, self.params)])
 
+    def _nominal_plant(self, over: dict) -> tuple[Plant, dict]:
+        """(the base plant with the nominal overrides ``over``, its params_dict), remembered for the last few
+        distinct overrides: a Jacobian over a table's knots builds the same nominal plant for every column."""
+        cache = self.__dict__.setdefault("_plants", {})
+        key = tuple(sorted(over.items()))
+        if key not in cache:
+            if len(cache) >= 4:
+                cache.pop(next(iter(cache)))
+            plant = self.base.with_params(over) if over else self.base
+            cache[key] = (plant, plant.params_dict())
+        return cache[key]
+
     def build(self, x) -> tuple[Plant, SensorModel]:
         vals = self.values(x)
         over = {}
-        base_pd = self.base.params_dict()
+        base_pd = self._nominal_plant({})[1]
         for _, p in self.params:
             if p.name in vals and "." in p.name and p.name.split(".")[0] in ("friction", "spring", "drive", "stops", "rotor"):
                 v = vals[p.name]
                 over[p.name] = v
                 for k in p.follows:
                     over[k] = base_pd[k] * v / p.init
-        plant = self.base.with_params(over) if over else self.base
-        pd = plant.params_dict()
+        plant, pd = self._nominal_plant(over)
         effects = []
         sensor = {}
         for c in self.candidates:
@@ -202,6 +213,10 @@ class Spec:
             if c.sensor:
                 sensor.update(fields)
                 continue
+            missing = [k for _, k in c.ties if k not in pd]
+            if missing:             # e.g. spring_asymmetry on a plant file without a spring: not applicable
+                raise ValueError(f"{c.id} needs the plant's {', '.join(missing)}, and this plant has no "
+                                 f"{missing[0].split('.')[0]} component")
             fields.update({f: pd[k] for f, k in c.ties})
             fields.update(dict(c.fixed))
             e = c.component(c.component.Params(**fields))

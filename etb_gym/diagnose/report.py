@@ -11,10 +11,11 @@ import numpy as np
 
 from ..io import write_atomic
 from ..plantfile import save_plant
+from . import disturbance as D
 from . import locate as L
 from .candidates import CANDIDATES
 from .model import angle_residuals_deg, simulate
-from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_residual
+from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_mismatch
 
 
 FIGURES = ("residual_time.png", "residual_regimes.png", "angle_fit.png", "shapes.png")
@@ -121,8 +122,9 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
     tab0, regs = _regimes(data, base, res0, nominal.spec.build(nominal.x))
     tab1, _ = _regimes(data, base, res1, (plant, sensor))
     before, after = _merge_tables(tab0), _merge_tables(tab1)
-    sig0 = significant_residual(data, res0)
-    sig1 = significant_residual(data, res1)
+    z0 = D.current_z(D.persistent_mismatch(data, *nominal.spec.build(nominal.x)))   # a closed loop's current
+    sig0 = significant_mismatch(data, res0, *nominal.spec.build(nominal.x), z_ref=z0)
+    sig1 = significant_mismatch(data, res1, plant, sensor, z_ref=z0)
     windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg) for rd, r in zip(data.recs, res0)}
     effects = _effects(data, base, nominal, final, steps, res0, opts)
     quant = max(rd.resolution_deg for rd in data.recs)

@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from ..plant import Plant
+from . import disturbance as D
 from . import fit as F
 from . import locate as L
 from .model import Data
@@ -45,3 +46,15 @@ def significant_residual(data: Data, res: list) -> bool:
         if math.sqrt(float(np.mean(r ** 2))) > RMS_K * math.sqrt(rd.noise_deg ** 2 + tol2):
             return True
     return False
+
+
+def significant_mismatch(data: Data, res: list, plant, sensor, z_ref: float | None = None) -> bool:
+    """:func:`significant_residual`, or a persistent structure in the current residual of a recording scored by
+    the observer (a closed loop: the loop hides an effect in the angle, not in the current it needed;
+    disturbance.py). ``res``: the angle residuals of the model (``plant``, ``sensor``). ``z_ref``: the nominal
+    model's current z; a structure that the model has accounted for against it (disturbance.resolved, the rule
+    that accepts a candidate for it) no longer counts."""
+    if significant_residual(data, res):
+        return True
+    z = D.current_z(D.persistent_mismatch(data, plant, sensor))
+    return z > D.Z_DETECT and (z_ref is None or not D.resolved(z_ref, z))

@@ -20,7 +20,8 @@ from .candidates import CANDIDATES, FITTED_CANDIDATES
 from .explain import Runner, select
 from .measurement import DEFAULT_RESOLUTION_DEG
 from .model import Data, SimulationFailed, Spec, angle_residuals_deg, prepare, replay_view, restart_view, simulate
-from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_residual  # noqa: F401  (re-exported)
+from . import disturbance as D
+from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_mismatch, significant_residual  # noqa: F401
 
 _significant_residual = significant_residual
 
@@ -274,17 +275,23 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         res0 = angle_residuals_deg(simulate(*spec0.build(nominal.x), data), data)
         lap("calibrate")
 
-        def significant(fr: F.FitResult) -> bool:
-            return _significant_residual(data, angle_residuals_deg(simulate(*fr.spec.build(fr.x), data), data))
+        def persistent(fr: F.FitResult) -> float:     # a closed loop's current residual (disturbance.py)
+            return D.current_z(D.persistent_mismatch(data, *fr.spec.build(fr.x)))
 
-        sig0 = _significant_residual(data, res0)
+        z0 = persistent(nominal)
+
+        def significant(fr: F.FitResult) -> bool:
+            model = fr.spec.build(fr.x)
+            return significant_mismatch(data, angle_residuals_deg(simulate(*model, data), data), *model, z_ref=z0)
+
+        sig0 = significant(nominal)
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
         shaped = None
         if sig0:
             # the search starts from the fit's own optimum: a model that misses an effect drifts on the
             # continuous replay, so its polish says nothing about where the effect's fit should start
             final, steps = select(nominal0, fit_data, runner, [c for c in opts.candidates if CANDIDATES[c].fit],
-                                  significant, opts.max_effects, bar, log, skipped)
+                                  significant, opts.max_effects, bar, log, skipped, persistent=persistent)
             lap("select")
             from .refine import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
             final, steps, shaped = refine(nominal0, final, steps, fit_data, significant, log=log)
@@ -326,6 +333,10 @@ def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skippe
     # which residual each recording was calibrated, located and explained with (model.prepare, observer.py)
     result.report["residual"] = {rd.rec.name: rd.residual for rd in data.recs}
     if any(rd.residual == "observer" for rd in data.recs):
+        # the persistent structure of the observer's residuals (disturbance.py): before and after
+        result.report["persistent_structure"] = {
+            "before": [s.as_dict() for s in D.persistent_mismatch(data, *nominal.spec.build(nominal.x))],
+            "after": [s.as_dict() for s in D.persistent_mismatch(data, plant, sensor)]}
         from . import observer
         result.report["observer"] = {"bandwidth_rad_s": observer.OMEGA_O, "corrects": "angle"}
     if shaped is not None:

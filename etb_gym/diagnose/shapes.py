@@ -397,6 +397,14 @@ def jacobian(pb: Problem, data: Data, r0: np.ndarray, step: float = FD_STEP) -> 
     return J
 
 
+def _jacobian_at(pb: Problem, data: Data, r: np.ndarray, jac_substeps: int) -> np.ndarray:
+    """:func:`jacobian` of ``pb`` at ``jac_substeps`` (:func:`_coarse`); ``r``, the residual at pb.x at the
+    model's own step, is reused where that step is not coarsened (one simulation less)."""
+    spec = _coarse(pb.spec, jac_substeps)
+    r0 = r if spec is pb.spec else _residual(spec, data, pb.x)
+    return jacobian(dataclasses.replace(pb, spec=spec), data, r0)
+
+
 def _penalty_scales(J: np.ndarray, pb: Problem) -> list:
     """Per table: mean squared Jacobian column over mean squared roughness column, so that a relative
     weight of 1 balances the data and the roughness whatever the table's units."""
@@ -531,10 +539,8 @@ def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int | None = Non
     lams = rel = None
     curve = []
     J = None
-    coarse = dataclasses.replace(pb, spec=_coarse(pb.spec, jac_substeps))
     for it in range(iters):
-        coarse.x = pb.x
-        J = jacobian(coarse, data, _residual(coarse.spec, data, pb.x))
+        J = _jacobian_at(pb, data, r, jac_substeps)
         if it == 0:
             pb = anchor_unidentified(pb, J)
         rel, c = choose_lambdas(J, r, pb, data, grid)      # re-chosen at every linearization
@@ -576,8 +582,7 @@ def heldout_error(pb: Problem, data: Data, lams=(), J=None, jac_substeps: int = 
     residual is simulated. Comparable between a formula (no tables) and a map."""
     r = _residual(pb.spec, data, pb.x)
     if J is None:
-        coarse = dataclasses.replace(pb, spec=_coarse(pb.spec, jac_substeps))
-        J = jacobian(coarse, data, _residual(coarse.spec, data, pb.x))
+        J = _jacobian_at(pb, data, r, jac_substeps)
     fold, is_angle = _row_info(data)
     tot, cnt = 0.0, 0
     for f in (0, 1):

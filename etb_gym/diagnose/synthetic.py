@@ -163,15 +163,23 @@ NAMEPLATE_RANGES = {                      # what random_nameplate draws from (un
 LOG_RANGES = ("drive.inductance_H", "rotor.inertia_kg_m2")
 
 
-def random_nameplate(rng: np.random.Generator, model: str = "3B", **plant_kw) -> Plant:
+def random_nameplate(rng: np.random.Generator, model: str = "3B", *, fixed: dict | None = None,
+                     **plant_kw) -> Plant:
     """A throttle of another size: R, L, c_M, J, limp-home, stops, friction and spring levels drawn from
     NAMEPLATE_RANGES (L and J log-uniform), redrawn until the motor's stall torque beats the spring and the
-    friction at the open stop by 1.8x or more (a throttle that can open fully)."""
+    friction at the open stop by 1.8x or more (a throttle that can open fully). ``fixed``: values (keys of
+    NAMEPLATE_RANGES, e.g. an extreme ``{"drive.inductance_H": 1e-3}``) taken as given instead of drawn."""
     from ..plant import make_plant
+    fixed = dict(fixed or {})
+    unknown = set(fixed) - set(NAMEPLATE_RANGES)
+    if unknown:
+        raise ValueError(f"random_nameplate: fixed {sorted(unknown)} unknown; expected keys of NAMEPLATE_RANGES: "
+                         f"{', '.join(NAMEPLATE_RANGES)}")
     for _ in range(200):
         v = {}
         for k, (lo, hi) in NAMEPLATE_RANGES.items():
             v[k] = math.exp(rng.uniform(math.log(lo), math.log(hi))) if k in LOG_RANGES else float(rng.uniform(lo, hi))
+        v.update(fixed)
         stall = v["drive.torque_constant_Nm_per_A"] * 12.0 / v["drive.resistance_ohm"]
         span = math.radians(v["stops.open_deg"] - v["spring.limp_home_deg"])
         need = v["spring.preload_Nm"] + v["spring.rate_Nm_per_rad"] * span + 1.1 * v["friction.coulomb_Nm"]
@@ -185,6 +193,9 @@ def random_nameplate(rng: np.random.Generator, model: str = "3B", **plant_kw) ->
             "spring.preload_Nm": v["spring.preload_Nm"], "spring.rate_Nm_per_rad": v["spring.rate_Nm_per_rad"]}
     p = make_plant(model, **plant_kw)
     pd = p.params_dict()
+    if "drive.torque_constant_Nm_per_A" not in pd:      # drive C: k_C = N psi_hat, scaled through the turns N
+        k_c = over.pop("drive.torque_constant_Nm_per_A")
+        over["drive.ampere_turns"] = pd["drive.ampere_turns"] * k_c / p.drive.params.torque_constant_Nm_per_A
     if "drive.saturation_current_A" in pd:              # saturation at the same fraction of the stall current
         over["drive.saturation_current_A"] = pd["drive.saturation_current_A"] * (12.0 / v["drive.resistance_ohm"]) / 9.6
     f = p.friction.params.to_dict() if p.friction is not None else {}

@@ -1,0 +1,56 @@
+#!/usr/bin/env python
+"""Plant-file probe (issue 15, docs/diagnosis.md "Robustness round 10"): valid but unusual plant files (no stops,
+no spring, no friction, an effect already in the file, switching PWM, a 24 V supply) diagnosing a 1 s clean 3B
+recording with two candidates; each must end in a verdict or a ValueError, never another exception.
+
+    nice -n 10 python scripts/fuzz_plant_probe.py ["no spring" ...]
+"""
+import json
+import sys
+import time
+import traceback
+import warnings
+
+import numpy as np
+
+from etb_gym.components import effects as fx
+from etb_gym.diagnose.run import Options, diagnose
+from etb_gym.diagnose.synthetic import make_recording
+from etb_gym.plant import Plant, make_plant
+
+warnings.simplefilter("ignore")
+which = sys.argv[1:]
+bugs = 0
+rng = np.random.default_rng(3)
+truth = make_plant("3B", substeps=20)
+rec = make_recording(truth, rng, duration_s=1.0, name="r.csv")
+base = make_plant("3B").to_dict()
+def pl(**kw):
+    d = json.loads(json.dumps(base))
+    d.update(kw)
+    return Plant.from_dict(d)
+
+
+
+cases = {
+ "no stops": lambda: pl(stops=None),
+ "no spring": lambda: pl(spring=None),
+ "no friction": lambda: pl(friction=None),
+ "with flux-loss effect": lambda: make_plant("3B", effects=[fx.ShaftFluxLoss(loss_at_open_Nm_per_A=0.01, exponent=3.0)]),
+ "pwm switching": lambda: make_plant("3B", pwm_mode="switching"),
+ "supply 24 V": lambda: make_plant("3B", supply_V=24.0),
+}
+for name in which or cases:
+    t0 = time.time()
+    try:
+        p = cases[name]()
+        res = diagnose([rec], options=Options(plant=p, jobs=1, progress=False, verbose=False, max_effects=1,
+                                               candidates=("shaft_flux_loss", "spring_asymmetry")))
+        print(f"{name}: {res.report['verdict']} {[e['id'] for e in res.report['effects']]} {time.time()-t0:.0f} s", flush=True)
+    except ValueError as e:
+        print(f"{name}: ValueError {str(e)[:300]} {time.time()-t0:.0f} s", flush=True)
+    except Exception as e:
+        print(f"{name}: BUG {type(e).__name__}: {str(e)[:300]}", flush=True)
+        traceback.print_exc(limit=-4)
+        bugs += 1
+sys.exit(1 if bugs else 0)
