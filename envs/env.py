@@ -14,6 +14,7 @@ from gymnasium import spaces
 
 from etb_gym.components.sensor import PositionSensor, PositionSensorParams, delay_push, sense
 from etb_gym.jit import py_func
+from etb_gym.plant import read_only
 from etb_gym.variants import PlantVariant
 
 from . import observation as obsmod
@@ -309,7 +310,7 @@ class ETBEnv(gym.Env):
                 noise = draws["sensor_noise_std_deg"] / RAD2DEG
         if opts.get("supply_V") is not None:
             V = opt.voltage("options['supply_V']", opts["supply_V"])
-        P = self.plant.param_vector(overrides) if overrides else self._P_nominal
+        P = read_only(self.plant.param_vector(overrides)) if overrides else self._P_nominal   # one compiled type
         spec = opts.get("reference")
         if spec is not None:
             ref = self._build_reference(spec, rng)

@@ -36,6 +36,7 @@ from gymnasium.vector.utils import batch_space
 
 from etb_gym.components.sensor import delay_push, sense
 from etb_gym.jit import HAVE_NUMBA, kernel
+from etb_gym.plant import read_only
 from etb_gym.threadpool import ensure_thread_pool
 
 from .env import ETBEnv
@@ -208,6 +209,7 @@ class ETBVectorEnv(VectorEnv):
         self._X = np.zeros((N, p.n_states))
         self._AUX = np.zeros((N, len(p.components)))
         self._P = np.tile(kn.P_nominal, (N, 1))
+        self._P_read_only = read_only(self._P)  # rhs compiled for read-only P, as for the single env and the plant
         self._V = np.full(N, env.supply_V)
         self._K = np.zeros(N, np.int64)
         self._t0 = np.zeros(N)
@@ -247,7 +249,7 @@ class ETBVectorEnv(VectorEnv):
             self._noise_std[i] = ep.noise_std_rad
             self._K[i] = 0
             self._duty[i] = 0.0
-            self.kernel.rhs(0.0, self._X[i], 0.0, self._P[i], self._dx, self._AUX[i])
+            self.kernel.rhs(0.0, self._X[i], 0.0, self._P_read_only[i], self._dx, self._AUX[i])
             self._dbuf[i] = self._X[i, 0]
             self._dpos[i] = 0
             rng.standard_normal(out=self._noise[i])

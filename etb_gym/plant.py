@@ -318,7 +318,7 @@ class Plant:
         if at_rest and velocity_rad_s == 0.0:
             dx = np.empty(self.n_states)
             aux = np.zeros(len(self.components))
-            self.engine.fns.rhs(0.0, x, 0.0, self.P, dx, aux)
+            self.engine.fns.rhs(0.0, x, 0.0, read_only(self.P), dx, aux)
             held = float(np.sum(aux))
             for k, c in enumerate(self.components):
                 s0, s1 = lay.state_slices[k]
@@ -410,14 +410,15 @@ class Plant:
         d, Vs = self._inputs(n, duty, voltage, supply_V)
         x0 = self.initial_state(None if angle_deg is None else math.radians(angle_deg)) if x0 is None \
             else self.check_state(x0)
-        X = solve_ivp_reference(self.engine, self.P, x0, d, Vs, self.control_period_s, t0=t0,
+        P = read_only(self.P)
+        X = solve_ivp_reference(self.engine, P, x0, d, Vs, self.control_period_s, t0=t0,
                                 switching=self.supply.switching, f_pwm=self.supply.pwm_frequency_hz,
                                 method=method, rtol=rtol)
         A = np.zeros((n + 1, len(self.components)))
         dx = np.empty(self.n_states)
         for k in range(n + 1):
             self.engine.fns.rhs(t0 + k * self.control_period_s, X[k], d[max(k - 1, 0)] * Vs[max(k - 1, 0)],
-                                self.P, dx, A[k])
+                                P, dx, A[k])
         return self._trajectory(X, A, d, Vs, t0)
 
     def check_state(self, x) -> np.ndarray:
@@ -474,6 +475,15 @@ class Plant:
                 f"plate more than 29 deg beyond an end stop, or a coil current beyond 4 x supply / resistance): "
                 f"{state}. The parameters are outside what the fixed-rate stepper is stable for "
                 f"(docs/model.md, sec. 9)")
+
+
+def read_only(P: np.ndarray) -> np.ndarray:
+    """A read-only view of the parameter vector P, for calls of the generated ``rhs`` from Python: numba compiles a
+    function once per argument type, and the envs hand it their read-only P, so a writable P here compiled rhs
+    (the whole right-hand side, inlined) a second time for every composition stepped by both."""
+    v = P.view()
+    v.setflags(write=False)
+    return v
 
 
 def make_plant(model: str = "3B", overrides: Mapping[str, float] | None = None, *,

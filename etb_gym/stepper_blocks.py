@@ -144,6 +144,9 @@ def step_blocks(components, lay, cv: Carries):
     if th >= 1.0 and -RHO_STIFF <= h * r1 <= RHO_MIN:
         return 0.5 * h{cv.names("n")}, r1
 {restore}    return resolve(t, h, hp, r1, x, u, P, dx, aux{cv.args()})"""
+    # One substep call in the loop (substep is inlined: a second call site compiled it a second time). A try
+    # over the rest of the piece that crosses an edge is undone and followed by the substep up to the edge
+    # ("to_edge"), after which the rest is tried again (at most MAX_SPLITS times).
     resolve_block = f"""    m = 1
     if h * r > RHO_MIN:
         m = int(math.ceil(h * r / RHO_MAX - 1e-9))
@@ -159,24 +162,32 @@ def step_blocks(components, lay, cv: Carries):
     for piece in range(m):
         tp = t + piece * hs
         rem = hs
-        for split in range(MAX_SPLITS + 1):
+        hk = hs
+        to_edge = False
+        split = 0
+        while True:
             for j in range({ns}):
                 dx[{2 * ns} + j] = x[j]
             phi0 = x[0]
             omega0 = x[1]
-            {cv.set("n")}substep(tp, rem, ha + 0.5 * rem, x, u, P, dx, aux{cv.args()})
+            {cv.set("n")}substep(tp, hk, ha + 0.5 * hk, x, u, P, dx, aux{cv.args()})
+            if to_edge:             # the substep up to the edge: on from there with the rest
+                {"".join(f"c{k} = c{k}n; " for k in cv.carried)}ha = 0.5 * hk
+                tp = tp + hk
+                rem = rem - hk
+                hk = rem
+                to_edge = False
+                continue
             if split == MAX_SPLITS:
                 break
             th = edges(phi0, omega0, x[0], x[1], P)
             if th >= 1.0:
                 break
-            for j in range({ns}):    # an edge was crossed: redo up to it, then on
+            for j in range({ns}):    # an edge was crossed: undo, then up to it
                 x[j] = dx[{2 * ns} + j]
-            h1 = th * rem
-            {cv.set()}substep(tp, h1, ha + 0.5 * h1, x, u, P, dx, aux{cv.args()})
-            ha = 0.5 * h1
-            tp = tp + h1
-            rem = rem - h1
+            hk = th * rem
+            to_edge = True
+            split += 1
         {"".join(f"c{k} = c{k}n; " for k in cv.carried)}ha = 0.5 * rem
     return 0.5 * rem{cv.names()}, rates(x, P)
 """

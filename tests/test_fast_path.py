@@ -103,7 +103,9 @@ def test_batch_step_equals_single_steps(pwm_mode, parallel):
 
 @needs_numba
 def test_batch_step_plain_engine_agrees_and_reports_nonfinite():
-    p = make_plant("3A")
+    """(3B, whose parallel batch step test_batch_step_equals_single_steps compiles already: on 3A this test alone
+    compiled a batch step, ~13 s CPU on a cold cache.)"""
+    p = make_plant("3B")
     N = 4
     X, P, V, D = _batch_inputs(p, N, seed=1)
     Xp, AUX, AUXp, OK, OKp = X.copy(), np.zeros((N, 4)), np.zeros((N, 4)), np.zeros(N, bool), np.zeros(N, bool)
@@ -157,8 +159,11 @@ class _LuGreRecomputing(LuGreFriction):
 
 
 def _carry_cases():
-    return {"3B": make_plant("3B"), "3C": make_plant("3C"), "3A-switching": make_plant("3A", pwm_mode="switching"),
-            "3B-switching-9V": make_plant("3B", pwm_mode="switching", supply_V=9.0),
+    """Each case compiles a recomputing twin no other test needs (~10 s CPU on a cold cache), so two cases that
+    between them take every generated path: switching PWM (control_step_dx, single and batch) on the linear drive,
+    averaged PWM (control_step_group) on the nonlinear-inductance drive with four effects beside the carry (a state
+    effect, a second friction term and the backlash's contacts, whose resolve path carries the value too)."""
+    return {"3A-switching": make_plant("3A", pwm_mode="switching"),
             "3B+effects": make_plant("3B", effects=_effects())}
 
 
@@ -172,10 +177,10 @@ def test_carried_stribeck_curve_gives_the_same_bits_as_recomputing_it(name, rich
     control_step_dx (switching) per plant as the parallel batch_step runs on each thread, so the carried values
     are checked on every generated path; that the parallel batch step equals single steps is
     test_batch_step_equals_single_steps. (Checking parallel=None here too compiled a parallel batch step for
-    five compositions no other test steps in parallel: the four recomputing ones and 3B+effects.)"""
+    compositions no other test steps in parallel: the recomputing ones and 3B+effects.)"""
     p = _carry_cases()[name]
     q = p.replace(friction=_LuGreRecomputing(p.friction.params))
-    assert "c1 = substep(" in p.engine.source and "c1" not in q.engine.source
+    assert "c1n = substep(" in p.engine.source and "c1" not in q.engine.source
     assert p.fast == q.fast == HAVE_NUMBA
     sw = "switching" in name
     d = rich_duty[:2000:4 if sw else 1]
@@ -284,3 +289,19 @@ def test_substep_loop_makes_no_reference_count_calls():
                 counts[short] = len(re.findall(r"call void @NRT_(?:in|de)cref", m.group(0)))
     assert {"control_step_group", "resolve", "physical", "control_step_dx"} <= set(counts), counts
     assert not any(counts.values()), f"reference-count calls in the stepper: {counts}"
+
+
+@needs_numba
+def test_rhs_is_compiled_once_for_the_plant_and_the_envs():
+    """Plant.initial_state, Plant.reference and the envs' resets (randomized or not) call the generated rhs with a read-only P
+    (plant.read_only): a writable P from the plant beside the envs' read-only one compiled rhs twice per
+    composition (numba compiles once per argument type)."""
+    import gymnasium as gym
+
+    p = make_plant("3B")
+    p.reference(np.full(2, 0.2))
+    gym.make("ETB-3B-v0").reset(seed=0)
+    gym.make("ETB-3B-v0", randomize=True).reset(seed=0)       # a drawn P, made read-only too
+    gym.make_vec("ETB-3B-v0", num_envs=2).reset(seed=0)
+    sigs = p.engine.fns.rhs.signatures
+    assert len(sigs) == 1 and not sigs[0][3].mutable, sigs
