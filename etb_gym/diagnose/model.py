@@ -264,7 +264,6 @@ def simulate(plant: Plant, sensor: SensorModel, data: Data, raise_on_failure: bo
     fns = plant.stepper()
     keep = _persistent_slices(plant)
     R = float(getattr(plant.drive.params, "resistance_ohm", 1.0))
-    no_gain = np.zeros(plant.n_states)
     out = []
     for rd in data.recs:
         if rd.residual == "observer":         # closed loop: one-step prediction error of the observer
@@ -279,7 +278,6 @@ def simulate(plant: Plant, sensor: SensorModel, data: Data, raise_on_failure: bo
         n = r.n
         ang = np.full(n, np.nan)
         cur = np.full(n, np.nan)
-        no_reading = np.full(n, np.nan)
         xprev = None
         for a, b in zip(rd.bounds[:-1], rd.bounds[1:]):
             last = b == rd.bounds[-1]
@@ -311,12 +309,8 @@ def simulate(plant: Plant, sensor: SensorModel, data: Data, raise_on_failure: bo
             m = b - a
             X = np.empty((m + 1, plant.n_states))
             A = np.empty((m + 1, len(plant.components)))
-            # the observer's kernel with no reading (NaN: no correction) and zero gain steps exactly like
-            # fns.simulate (tests/test_diagnosis_time.py): one compiled entry point per composition serves both
-            # residuals, so a composition new to the kernel cache compiles once, not twice
-            done = fns.observe(x0, rd.duty[a:b], rd.supply_V[a:b], plant.P, float(r.t_s[a]), plant.control_period_s,
-                               plant.substeps, plant.supply.switching, plant.supply.pwm_frequency_hz,
-                               no_reading[a:b + 1], no_gain, 0.0, X, A)
+            done = fns.simulate(x0, rd.duty[a:b], rd.supply_V[a:b], plant.P, float(r.t_s[a]), plant.control_period_s,
+                                plant.substeps, plant.supply.switching, plant.supply.pwm_frequency_hz, X, A)
             if done < m:
                 if raise_on_failure:
                     raise SimulationFailed(f"the simulated state became non-finite in {r.name} at "
