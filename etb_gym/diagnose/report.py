@@ -119,11 +119,12 @@ def _unexplained(data, res1, tab1) -> list:
 def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor, opts, elapsed):
 
     names = [r.name for r in recs]
-    tab0, regs = _regimes(data, base, res0, nominal.spec.build(nominal.x))
+    model0 = nominal.spec.build(nominal.x)
+    tab0, regs = _regimes(data, base, res0, model0)
     tab1, _ = _regimes(data, base, res1, (plant, sensor))
     before, after = _merge_tables(tab0), _merge_tables(tab1)
-    z0 = D.current_z(D.persistent_mismatch(data, *nominal.spec.build(nominal.x)))   # a closed loop's current
-    sig0 = significant_mismatch(data, res0, *nominal.spec.build(nominal.x), z_ref=z0)
+    z0 = D.current_z(D.persistent_mismatch(data, *model0))          # a closed loop's current residual
+    sig0 = significant_mismatch(data, res0, *model0, z_ref=z0)
     sig1 = significant_mismatch(data, res1, plant, sensor, z_ref=z0)
     windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg) for rd, r in zip(data.recs, res0)}
     effects = _effects(data, base, nominal, final, steps, res0, opts)
