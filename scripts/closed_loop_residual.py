@@ -141,10 +141,11 @@ def structure_row(rec, base) -> dict:
     spec = Spec(b)
     nom = polish(F.calibrate(spec, restart_view(data), max_nfev=40), data)
     numerical_tolerance(spec, nom.x, data)
-    pred = simulate(*spec.build(nom.x), data)
+    plant, sensor = spec.build(nom.x)
+    pred = simulate(plant, sensor, data)
     r = angle_residuals_deg(pred, data)
     rd = data.recs[0]
-    st = D.persistent(rd, pred[0]) if rd.residual == "observer" else []
+    st = D.persistent(rd, pred[0], plant) if rd.residual == "observer" else []
     return {"residual": rd.residual, "rms_over_noise": float(math.sqrt(np.mean(r[0] ** 2)) / rd.noise_deg),
             "windows": len(L.windows(rec.t_s, r[0], rd.noise_deg, rd.tol_deg)),
             "significant_today": bool(significant_residual(data, r)),

@@ -246,10 +246,10 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolv
             return c, g, full
         if resolves is not None and resolves(full):
             ctx.log(f"  {c}: angle RMS x{ratio:.2f}, but it accounts for the persistent structure of the closed "
-                    "loop's current residual: accepted")
+                    "loop's residuals (current, steady motion): accepted")
             return c, g, full
         ctx.log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f})"
-                + (" and the current's persistent structure stays" if resolves is not None else "") + ": not accepted")
+                + (" and the persistent structure stays" if resolves is not None else "") + ": not accepted")
         if resolves is None and not (evidence is not None and c == evidence["winner"]):
             return None                     # (the physics' choice falling short lets the next one try)
     return None
@@ -297,7 +297,7 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         if z_cur > disturbance.Z_DETECT:        # a closed loop's current residual: its structure can decide
             def resolves(fr, z=z_cur):
                 z_new = persistent(fr)
-                ctx.log(f"  the current residual's persistent structure: z {z:.1f} -> {z_new:.1f}")
+                ctx.log(f"  the closed loop's persistent structure: z {z:.1f} -> {z_new:.1f}")
                 return disturbance.resolved(z, z_new)
         if passing:
             passing.sort(key=lambda s: -s[0])

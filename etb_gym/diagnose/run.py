@@ -294,7 +294,8 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
                                   significant, opts.max_effects, bar, log, skipped, persistent=persistent)
             lap("select")
             from .refine import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
-            final, steps, shaped = refine(nominal0, final, steps, fit_data, significant, log=log)
+            final, steps, shaped = refine(nominal0, final, steps, fit_data, significant, log=log,
+                                           persistent=persistent)
             lap("refine")
             final = nominal if final is nominal0 else polish(final, data)
             lap("polish")
