@@ -190,3 +190,18 @@ def test_steady_motion_drops_slow_samples_and_those_near_a_reversal():
     # a noisier reading raises w_min: 5 x noise / (15 dt)
     noisy = D.steady_motion(rec, 1.0, 0.0)
     assert noisy.sum() < m.sum() and np.all(speed[inner][noisy[inner]] > D.MOTION_NOISE * 1.0 / (D.SPEED_SMOOTH * dt))
+
+
+def test_generic_tables_are_kept_on_a_closed_loop_structure_only_when_they_account_for_it():
+    """refine._accounts: the generic tables replace the catalogue model on a closed loop when the catalogue
+    model leaves a significant persistent structure and the tables leave at most disturbance.resolved's share."""
+    from etb_gym.diagnose import disturbance as D
+    from etb_gym.diagnose.refine import _accounts
+    z = {"catalogue": 20.0, "tables": 9.0}
+    log = []
+    assert _accounts(z.get, "catalogue", "tables", log.append) and "accounted for" in log[-1]
+    z["tables"] = 15.0                                      # most of it left
+    assert not _accounts(z.get, "catalogue", "tables", log.append)
+    z["catalogue"], z["tables"] = D.Z_DETECT - 0.5, 0.0    # nothing significant to account for
+    assert not _accounts(z.get, "catalogue", "tables", log.append)
+    assert not _accounts(None, "catalogue", "tables", log.append)
