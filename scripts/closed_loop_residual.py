@@ -213,7 +213,12 @@ def main(argv=None):
                        named_first=(not ids) if fam is None else bool(ids) and ids[0] == fam.split("@")[0],
                        rms_before=rep["rms_before_deg"], rms_after=rep["rms_after_deg"],
                        noise=rep["noise_floor_deg"], cpu_s=rep.get("cpu_s"),
-                       persistent=rep.get("persistent_structure"))
+                       persistent=rep.get("persistent_structure"),
+                       outside=[{"id": u["id"], "description": u.get("description"),
+                                 "period_deg": next((d.get("period_deg") for d in (u.get("shape", {}).get("angle", {}),
+                                                                                 u.get("shape", {}).get("current", {}))
+                                                     if d.get("periodic")), None)}
+                                for u in rep.get("unexplained", []) if u.get("outside_catalogue")])
             txt = f"{row['verdict']:16s} {ids} named_first={row['named_first']} cpu {rep.get('cpu_s', 0):.1f} s"
         row["time_s"] = round(time.perf_counter() - t0, 1)
         print(f"{case:24s} s{seed} size {size if size is not None else '-'}  {txt}  ({row['time_s']} s)", flush=True)
