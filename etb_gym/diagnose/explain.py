@@ -18,7 +18,8 @@ Rounds repeat (two or more concurrent effects) while the remaining residual is s
 
 Closed loops (``persistent``: disturbance.py). A loop hides an effect in the angle, not in the current it had
 to apply, so a coil heating or a flux loss can leave the angle's held-out error and RMS as they were while the
-current residual carries a persistent structure. Where the current model has one and no candidate passes the
+current residual carries a persistent structure (a torque on the plate only, a detent: the angle innovation
+over steady motion; disturbance.deciding_z takes the larger). Where the current model has one and no candidate passes the
 held-out gain, the screened candidates (dBIC < -BIC_MIN) are tried in order of dBIC, and one is accepted when
 its full fit accounts for the structure (disturbance.resolved: the same statistic that found it, at most
 RESOLVE_SHARE = half of its z left). While such a structure stands, a candidate that accounts for it is accepted
