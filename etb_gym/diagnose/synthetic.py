@@ -22,32 +22,94 @@ from ..recordings import Recording
 QUIET_S = 0.2
 
 
-def open_loop_duty(duration_s: float, rng: np.random.Generator, dt: float = 1e-3) -> np.ndarray:
-    """Steps, ramps, release from full open, closed-stop push and PRBS-like duty, randomly ordered levels."""
+# Travel fractions f of the open-loop excitation (f = 0 at limp-home, 1 at the open stop; above 1 the duty
+# the spring would need beyond the stop, i.e. a push into it). Chosen so that on the default 3B plant the
+# levels span what the earlier raw duties did (docs/diagnosis.md, "An excitation scaled to the nameplate").
+STEP_TRAVEL = (0.05, 1.1)          # step targets, reached from either side (friction direction-aware)
+RAMP_TOP_TRAVEL = (0.5, 1.4)       # ramp tops, reached from below
+PRBS_BASE_TRAVEL = (0.3, 1.0)      # PRBS centre: the spring's holding duty there
+PRBS_STICK = (0.6, 1.6)            # PRBS amplitude in units of the friction level (below 1 it sticks)
+CLOSED_STICK = (0.75, 2.3)         # push into the closed stop: the spring there plus this x the friction
+OPEN_PUSH = 1.4                    # push to the open stop: (spring there + friction) x this, at most duty 1
+
+
+class TravelDuty:
+    """The duties of an open-loop excitation in angle terms for ``plant`` (its own R, c_M, supply, spring,
+    friction and stops). The coil is taken quasi-static, u = R T / c_M (the reference PID's feed-forward,
+    ``controllers.model.NominalModel``), T the spring's torque at the target angle (its own kernel) plus the
+    friction level in the direction of the move. A plant without Coulomb friction (viscous models 1x) uses a
+    quarter of the spring's torque over the travel as its "friction level"; without stops the travel is
+    3B's (3 deg below limp-home to 87 deg above)."""
+
+    def __init__(self, plant: Plant):
+        from etb_gym.controllers.model import NominalModel
+        self.nom = nom = NominalModel.from_plant(plant)
+        lh = nom.limp_home_rad
+        self.open_rad = plant.angle_max_rad if math.isfinite(plant.angle_max_rad) else lh + math.radians(87.0)
+        self.closed_rad = plant.angle_min_rad if math.isfinite(plant.angle_min_rad) else lh - math.radians(3.0)
+        span = nom.spring_torque_Nm(self.open_rad) - nom.spring_torque_Nm(lh + 1e-6)
+        full = nom.supply_V / nom.volts_per_Nm                  # the torque of duty 1 at rest
+        self.stick_Nm = max(nom.coulomb_Nm if nom.coulomb_Nm > 0 else 0.25 * span, 0.02 * full)
+
+    def angle_rad(self, f: float) -> float:
+        return self.nom.limp_home_rad + f * (self.open_rad - self.nom.limp_home_rad)
+
+    def duty(self, torque_Nm: float) -> float:
+        """The duty whose quasi-static coil current gives ``torque_Nm`` (not clipped)."""
+        return self.nom.volts_per_Nm * torque_Nm / self.nom.supply_V
+
+    def level(self, f: float, direction: float = 0.0) -> float:
+        """The duty that holds the plate at travel fraction ``f``, arriving from ``direction`` (+1 from
+        below: spring plus friction; -1 from above; 0 the middle of the friction band)."""
+        return self.duty(self.nom.spring_torque_Nm(self.angle_rad(f)) + direction * self.stick_Nm)
+
+    def closed_push(self, stick: float) -> float:
+        return self.duty(self.nom.spring_torque_Nm(self.closed_rad) - stick * self.stick_Nm)
+
+    def open_push(self) -> float:
+        return min(1.0, OPEN_PUSH * self.duty(self.nom.spring_torque_Nm(self.open_rad) + self.stick_Nm))
+
+
+def open_loop_duty(duration_s: float, rng: np.random.Generator, dt: float = 1e-3, plant: Plant | None = None
+                   ) -> np.ndarray:
+    """Steps, ramps, release from the open stop, closed-stop push and PRBS-like duty, randomly ordered, with
+    levels drawn as target angles over ``plant``'s travel (:class:`TravelDuty`; default plant: 3B)."""
+    if plant is None:
+        from ..plant import make_plant
+        plant = make_plant("3B")
+    tv = TravelDuty(plant)
     n = int(round(duration_s / dt))
     parts = []
+    at = 0.0                                            # travel fraction the plate was sent to last
+
     def hold(level, s):
         parts.append(np.full(int(s / dt), float(level)))
     while sum(p.size for p in parts) < n:
         kind = rng.integers(0, 5)
-        if kind == 0:                                   # a few steps
+        if kind == 0:                                   # a few steps to target angles
             for _ in range(3):
-                hold(rng.uniform(0.15, 0.75), rng.uniform(0.2, 0.5))
+                f = rng.uniform(*STEP_TRAVEL)
+                hold(tv.level(f, 1.0 if f >= at else -1.0), rng.uniform(0.2, 0.5))
+                at = f
         elif kind == 1:                                 # ramp up and down
-            top = rng.uniform(0.4, 0.9)
+            top = tv.level(rng.uniform(*RAMP_TOP_TRAVEL), 1.0)
             m = int(rng.uniform(0.4, 0.8) / dt)
             parts.append(np.linspace(0.0, top, m))
             parts.append(np.linspace(top, 0.0, m))
-        elif kind == 2:                                 # full open, then release
-            hold(1.0, rng.uniform(0.2, 0.4))
+            at = 0.0
+        elif kind == 2:                                 # to the open stop, then release
+            hold(tv.open_push(), rng.uniform(0.2, 0.4))
             hold(0.0, rng.uniform(0.3, 0.5))
+            at = 0.0
         elif kind == 3:                                 # into the closed stop
-            hold(rng.uniform(-0.5, -0.25), rng.uniform(0.15, 0.3))
+            hold(tv.closed_push(rng.uniform(*CLOSED_STICK)), rng.uniform(0.15, 0.3))
             hold(0.0, 0.2)
-        else:                                           # PRBS-like
+            at = 0.0
+        else:                                           # PRBS-like around a target angle
             m = int(rng.uniform(0.5, 1.0) / dt)
-            base = rng.uniform(0.25, 0.55)
-            amp = rng.uniform(0.1, 0.25)
+            at = rng.uniform(*PRBS_BASE_TRAVEL)
+            base = tv.level(at)
+            amp = tv.duty(rng.uniform(*PRBS_STICK) * tv.stick_Nm)
             hold_n = int(rng.integers(15, 60))
             bits = rng.integers(0, 2, size=m // hold_n + 1) * 2 - 1
             parts.append(base + amp * np.repeat(bits, hold_n)[:m])
@@ -136,7 +198,7 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
                                  enable_k=nq)
         cur = X[:, 2]
     else:
-        duty = np.concatenate([np.zeros(nq), open_loop_duty(duration_s - QUIET_S, rng, dt)])[:n]
+        duty = np.concatenate([np.zeros(nq), open_loop_duty(duration_s - QUIET_S, rng, dt, plant)])[:n]
         tr = plant.simulate(duty=duty[:-1], angle_deg=math.degrees(plant.limp_home_rad))
         v = tr.angle_rad + noise if reading is None else reading.apply(tr.angle_rad, noise)
         y = np.degrees(sensor.measure(v, rng))
