@@ -1,7 +1,9 @@
 """Rig-like recordings from a known ("truth") plant: the proof of the diagnosis and its tests use these.
 
 Excitation (duty at the control period): steps, ramps, a push to the open stop and a release from full
-open, a push into the closed stop, and a PRBS-like random duty. Closed loop: the package's reference PID
+open, a push into the closed stop, and a PRBS-like random duty, its levels drawn as target angles over the
+recorded plant's travel and turned into duties with that plant's R, c_M, supply, spring and friction
+(:class:`TravelDuty`), so a strong motor is not driven into its open stop and a weak one still travels. Closed loop: the package's reference PID
 (limp-home and friction compensation, designed on the nominal plant, not on the truth) tracks steps and
 ramps of the reference from the sensor's readings; the recorded voltage is what it commanded (so input and
 output are correlated, as on a real rig).
