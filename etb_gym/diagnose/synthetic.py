@@ -1,9 +1,10 @@
 """Rig-like recordings from a known ("truth") plant: the proof of the diagnosis and its tests use these.
 
 Excitation (duty at the control period): steps, ramps, a push to the open stop and a release from full
-open, a push into the closed stop, and a PRBS-like random duty, its levels drawn as target angles over the
-recorded plant's travel and turned into duties with that plant's R, c_M, supply, spring and friction
-(:class:`TravelDuty`), so a strong motor is not driven into its open stop and a weak one still travels. Closed loop: the package's reference PID
+open, a push into the closed stop, and a PRBS-like random duty; its levels are written for 3B and moved to the
+plant between its break-away duty at limp-home and its holding duty at the open stop (:class:`DutyMap`: the
+plant's spring, friction, R, c_M and supply), so a strong motor is not driven into its open stop and a weak one still travels. Closed
+loop: the package's reference PID
 (limp-home and friction compensation, designed on the nominal plant, not on the truth) tracks steps and
 ramps of the reference from the sensor's readings; the recorded voltage is what it commanded (so input and
 output are correlated, as on a real rig).
@@ -24,94 +25,82 @@ from ..recordings import Recording
 QUIET_S = 0.2
 
 
-# Travel fractions f of the open-loop excitation (f = 0 at limp-home, 1 at the open stop; above 1 the duty
-# the spring would need beyond the stop, i.e. a push into it). Chosen so that on the default 3B plant the
-# levels span what the earlier raw duties did (docs/diagnosis.md, "An excitation scaled to the nameplate").
-STEP_TRAVEL = (0.05, 1.1)          # step targets, reached from either side (friction direction-aware)
-RAMP_TOP_TRAVEL = (0.5, 1.4)       # ramp tops, reached from below
-PRBS_BASE_TRAVEL = (0.3, 1.0)      # PRBS centre: the spring's holding duty there
-PRBS_STICK = (0.6, 1.6)            # PRBS amplitude in units of the friction level (below 1 it sticks)
-CLOSED_STICK = (0.75, 2.3)         # push into the closed stop: the spring there plus this x the friction
-OPEN_PUSH = 1.4                    # push to the open stop: (spring there + friction) x this, at most duty 1
+def holding_duties(plant: Plant) -> tuple[float, float, float]:
+    """Three duties of ``plant`` through a quasi-static coil u = R T / c_M (the reference PID's feed-forward,
+    ``controllers.model.NominalModel``; the spring's torque from its own kernel, T_c its Coulomb level): the
+    break-away from limp-home towards open (spring just above limp-home + T_c), the hold at the open stop
+    arriving from below (spring there + T_c), and the push from limp-home into the closed stop (spring there
+    - T_c, negative). Not clipped (above 1 the motor cannot open fully). Without stops the travel is 3B's."""
+    from etb_gym.controllers.model import NominalModel
+    nom = NominalModel.from_plant(plant)
+    lh = nom.limp_home_rad
+    hi = plant.angle_max_rad if math.isfinite(plant.angle_max_rad) else lh + math.radians(87.0)
+    lo = plant.angle_min_rad if math.isfinite(plant.angle_min_rad) else lh - math.radians(3.0)
+    u = lambda T: nom.volts_per_Nm * T / nom.supply_V   # noqa: E731
+    return (u(nom.spring_torque_Nm(lh + 1e-6) + nom.coulomb_Nm), u(nom.spring_torque_Nm(hi) + nom.coulomb_Nm),
+            u(nom.spring_torque_Nm(lo) - nom.coulomb_Nm))
 
 
-class TravelDuty:
-    """The duties of an open-loop excitation in angle terms for ``plant`` (its own R, c_M, supply, spring,
-    friction and stops). The coil is taken quasi-static, u = R T / c_M (the reference PID's feed-forward,
-    ``controllers.model.NominalModel``), T the spring's torque at the target angle (its own kernel) plus the
-    friction level in the direction of the move. A plant without Coulomb friction (viscous models 1x) uses a
-    quarter of the spring's torque over the travel as its "friction level"; without stops the travel is
-    3B's (3 deg below limp-home to 87 deg above)."""
+MIN_RATIO = 0.05        # a plant without spring and friction still gets an excitation
 
-    def __init__(self, plant: Plant):
-        from etb_gym.controllers.model import NominalModel
-        self.nom = nom = NominalModel.from_plant(plant)
-        lh = nom.limp_home_rad
-        self.open_rad = plant.angle_max_rad if math.isfinite(plant.angle_max_rad) else lh + math.radians(87.0)
-        self.closed_rad = plant.angle_min_rad if math.isfinite(plant.angle_min_rad) else lh - math.radians(3.0)
-        span = nom.spring_torque_Nm(self.open_rad) - nom.spring_torque_Nm(lh + 1e-6)
-        full = nom.supply_V / nom.volts_per_Nm                  # the torque of duty 1 at rest
-        self.stick_Nm = max(nom.coulomb_Nm if nom.coulomb_Nm > 0 else 0.25 * span, 0.02 * full)
 
-    def angle_rad(self, f: float) -> float:
-        return self.nom.limp_home_rad + f * (self.open_rad - self.nom.limp_home_rad)
+class DutyMap:
+    """The excitation's duties, written for 3B, moved to ``plant``: a positive level d goes to the same place
+    between break-away from limp-home (b) and the hold at the open stop (o) as on 3B,
+    d' = b' + (d - b) (o' - b') / (o - b); an amplitude scales with (o' - b') / (o - b); a push into the closed
+    stop with the closed-side duty ratio. For 3B (or a plant with 3B's spring, friction, R, c_M and supply)
+    every duty is returned unchanged."""
 
-    def duty(self, torque_Nm: float) -> float:
-        """The duty whose quasi-static coil current gives ``torque_Nm`` (not clipped)."""
-        return self.nom.volts_per_Nm * torque_Nm / self.nom.supply_V
+    def __init__(self, plant: Plant | None):
+        from ..plant import make_plant
+        ref = holding_duties(make_plant("3B"))
+        own = holding_duties(plant) if plant is not None else ref
+        self.b_ref, self.b = ref[0], own[0]
+        self.ratio = max((own[1] - own[0]) / (ref[1] - ref[0]), MIN_RATIO)
+        self.closed_ratio = max(own[2] / ref[2], MIN_RATIO)
 
-    def level(self, f: float, direction: float = 0.0) -> float:
-        """The duty that holds the plate at travel fraction ``f``, arriving from ``direction`` (+1 from
-        below: spring plus friction; -1 from above; 0 the middle of the friction band)."""
-        return self.duty(self.nom.spring_torque_Nm(self.angle_rad(f)) + direction * self.stick_Nm)
+    def level(self, d: float) -> float:
+        return d + (self.b - self.b_ref) + (d - self.b_ref) * (self.ratio - 1.0)
 
-    def closed_push(self, stick: float) -> float:
-        return self.duty(self.nom.spring_torque_Nm(self.closed_rad) - stick * self.stick_Nm)
+    def amplitude(self, a: float) -> float:
+        return a * self.ratio
 
-    def open_push(self) -> float:
-        return min(1.0, OPEN_PUSH * self.duty(self.nom.spring_torque_Nm(self.open_rad) + self.stick_Nm))
+    def closed(self, d: float) -> float:
+        return d * self.closed_ratio
 
 
 def open_loop_duty(duration_s: float, rng: np.random.Generator, dt: float = 1e-3, plant: Plant | None = None
                    ) -> np.ndarray:
-    """Steps, ramps, release from the open stop, closed-stop push and PRBS-like duty, randomly ordered, with
-    levels drawn as target angles over ``plant``'s travel (:class:`TravelDuty`; default plant: 3B)."""
-    if plant is None:
-        from ..plant import make_plant
-        plant = make_plant("3B")
-    tv = TravelDuty(plant)
+    """Steps, ramps, release from full open, closed-stop push and PRBS-like duty, randomly ordered levels.
+    The levels are written for 3B (steps 0.15-0.75, ramps to 0.4-0.9, full open 1.0, closed push -0.5..-0.25,
+    PRBS around 0.25-0.55) and moved to ``plant`` by :class:`DutyMap` (default: 3B, unchanged), so a strong
+    motor is not driven into its open stop and a weak one still travels."""
+    dm = DutyMap(plant)
     n = int(round(duration_s / dt))
     parts = []
-    at = 0.0                                            # travel fraction the plate was sent to last
 
     def hold(level, s):
         parts.append(np.full(int(s / dt), float(level)))
     while sum(p.size for p in parts) < n:
         kind = rng.integers(0, 5)
-        if kind == 0:                                   # a few steps to target angles
+        if kind == 0:                                   # a few steps
             for _ in range(3):
-                f = rng.uniform(*STEP_TRAVEL)
-                hold(tv.level(f, 1.0 if f >= at else -1.0), rng.uniform(0.2, 0.5))
-                at = f
+                hold(dm.level(rng.uniform(0.15, 0.75)), rng.uniform(0.2, 0.5))
         elif kind == 1:                                 # ramp up and down
-            top = tv.level(rng.uniform(*RAMP_TOP_TRAVEL), 1.0)
+            top = dm.level(rng.uniform(0.4, 0.9))
             m = int(rng.uniform(0.4, 0.8) / dt)
             parts.append(np.linspace(0.0, top, m))
             parts.append(np.linspace(top, 0.0, m))
-            at = 0.0
-        elif kind == 2:                                 # to the open stop, then release
-            hold(tv.open_push(), rng.uniform(0.2, 0.4))
+        elif kind == 2:                                 # full open, then release
+            hold(dm.level(1.0), rng.uniform(0.2, 0.4))
             hold(0.0, rng.uniform(0.3, 0.5))
-            at = 0.0
         elif kind == 3:                                 # into the closed stop
-            hold(tv.closed_push(rng.uniform(*CLOSED_STICK)), rng.uniform(0.15, 0.3))
+            hold(dm.closed(rng.uniform(-0.5, -0.25)), rng.uniform(0.15, 0.3))
             hold(0.0, 0.2)
-            at = 0.0
-        else:                                           # PRBS-like around a target angle
+        else:                                           # PRBS-like
             m = int(rng.uniform(0.5, 1.0) / dt)
-            at = rng.uniform(*PRBS_BASE_TRAVEL)
-            base = tv.level(at)
-            amp = tv.duty(rng.uniform(*PRBS_STICK) * tv.stick_Nm)
+            base = dm.level(rng.uniform(0.25, 0.55))
+            amp = dm.amplitude(rng.uniform(0.1, 0.25))
             hold_n = int(rng.integers(15, 60))
             bits = rng.integers(0, 2, size=m // hold_n + 1) * 2 - 1
             parts.append(base + amp * np.repeat(bits, hold_n)[:m])
@@ -166,12 +155,14 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
                    noise_deg: float = 0.01, resolution_deg: float = 90.0 / 4096, colour: float = 0.0,
                    offset_deg: float = 0.0, gain: float = 1.0, delay_steps: int = 0,
                    current_noise_A: float = 0.01, with_current: bool = True, name: str = "rec.csv",
-                   controller=None, reading=None) -> Recording:
+                   controller=None, reading=None, nameplate: Plant | None = None) -> Recording:
     """One rig-like recording of ``plant`` (the truth). ``colour`` in [0, 1): AR(1) coefficient of the noise.
     Closed loop: ``controller`` (default: the reference PID designed on the nominal 3B plant; for another
     nameplate pass one designed on that nameplate) acts on these same readings (noise, quantization,
     offset/gain, delay). ``reading``: a truth shape of the reading (``proof``'s truth_shapes.SensorShape: its
-    ``stream(phi, noise)`` gives, sample by sample, what the sensor then reads), or None."""
+    ``stream(phi, noise)`` gives, sample by sample, what the sensor then reads), or None. ``nameplate``: the
+    plant the open-loop excitation is scaled to (what the rig's operator knows, e.g. the user's plant file;
+    default ``plant`` itself)."""
     dt = plant.control_period_s
     nq = int(round(QUIET_S / dt))                    # the rig idles (duty 0) before the run starts
     n = nq + int(round((duration_s - QUIET_S) / dt))
@@ -200,7 +191,8 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
                                  enable_k=nq)
         cur = X[:, 2]
     else:
-        duty = np.concatenate([np.zeros(nq), open_loop_duty(duration_s - QUIET_S, rng, dt, plant)])[:n]
+        duty = np.concatenate([np.zeros(nq), open_loop_duty(duration_s - QUIET_S, rng, dt,
+                                                               nameplate or plant)])[:n]
         tr = plant.simulate(duty=duty[:-1], angle_deg=math.degrees(plant.limp_home_rad))
         v = tr.angle_rad + noise if reading is None else reading.apply(tr.angle_rad, noise)
         y = np.degrees(sensor.measure(v, rng))
