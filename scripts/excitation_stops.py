@@ -4,7 +4,8 @@ and the travel covered (5th-95th percentile of the reading, as a share of limp-h
 
     python scripts/excitation_stops.py --nameplates 10 --duration 6 [--out rows.jsonl]
 
-Recordings are made with ``synthetic.make_recording`` (open loop, 0.01 deg noise, 12-bit) on
+Recordings are made with ``synthetic.make_recording`` (open loop, 0.01 deg noise, 12-bit; the excitation
+scaled to the recorded plant, ``nameplate=plant``, where the tree has it) on
 ``synthetic.random_nameplate(default_rng(1000 + k))`` for k < --nameplates, and on the default 3B plant; run it
 on two trees (before/after a change of the excitation) and compare the printed tables.
 """
@@ -19,7 +20,9 @@ from etb_gym.diagnose.synthetic import make_recording, random_nameplate
 
 
 def shares(plant, seed: int, duration: float) -> dict:
-    rec = make_recording(plant, np.random.default_rng(seed), duration_s=duration, noise_deg=0.01)
+    import inspect
+    kw = {"nameplate": plant} if "nameplate" in inspect.signature(make_recording).parameters else {}
+    rec = make_recording(plant, np.random.default_rng(seed), duration_s=duration, noise_deg=0.01, **kw)
     y = rec.angle_deg
     lh, lo, hi = (math.degrees(v) for v in (plant.limp_home_rad, plant.angle_min_rad, plant.angle_max_rad))
     p5, p95 = np.percentile(y, [5, 95])

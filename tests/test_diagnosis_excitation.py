@@ -9,7 +9,7 @@ from etb_gym.plant import make_plant
 
 
 def _shares(plant, seed):
-    rec = make_recording(plant, np.random.default_rng(seed), duration_s=3.0, noise_deg=0.01)
+    rec = make_recording(plant, np.random.default_rng(seed), duration_s=3.0, noise_deg=0.01, nameplate=plant)
     hi, lo = math.degrees(plant.angle_max_rad), math.degrees(plant.angle_min_rad)
     p5, p95 = np.percentile(rec.angle_deg, [5, 95])
     return (float(np.mean(rec.angle_deg > hi - 1.0)), float(np.mean(rec.angle_deg < lo + 0.5)),

@@ -17,7 +17,8 @@ noise and 12-bit quantization, write the files, and run ``etb-gym diagnose`` on 
 Nameplates (``--nameplate random``): the truth's R, L, c_M, J, limp-home, stops, friction and spring levels are
 drawn from wide ranges (``synthetic.NAMEPLATE_RANGES``) and the tool is given a plant file of that nameplate
 whose friction and spring are 10-20 % off (``synthetic.nameplate_file_plant``); closed-loop runs use the PID
-designed on that plant file.
+designed on that plant file, open-loop runs an excitation scaled to it (``synthetic.DutyMap``: 3B's duties
+moved between the file's break-away and open-stop holding duties; on 3B they are unchanged).
 
 rows.jsonl survives SIGKILL: each finished run is appended as one line in a single write and flushed to disk;
 on --resume a torn last line (a run killed while its row was written) is dropped and that run is redone.

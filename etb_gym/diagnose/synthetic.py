@@ -161,8 +161,9 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
     nameplate pass one designed on that nameplate) acts on these same readings (noise, quantization,
     offset/gain, delay). ``reading``: a truth shape of the reading (``proof``'s truth_shapes.SensorShape: its
     ``stream(phi, noise)`` gives, sample by sample, what the sensor then reads), or None. ``nameplate``: the
-    plant the open-loop excitation is scaled to (what the rig's operator knows, e.g. the user's plant file;
-    default ``plant`` itself)."""
+    plant the open-loop excitation is scaled to (:class:`DutyMap`; what the rig's operator knows, e.g. the
+    user's plant file, or ``plant`` itself); default None: 3B's duties unscaled, as before the scaling (the
+    tests' recordings keep their excitation)."""
     dt = plant.control_period_s
     nq = int(round(QUIET_S / dt))                    # the rig idles (duty 0) before the run starts
     n = nq + int(round((duration_s - QUIET_S) / dt))
@@ -191,8 +192,7 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
                                  enable_k=nq)
         cur = X[:, 2]
     else:
-        duty = np.concatenate([np.zeros(nq), open_loop_duty(duration_s - QUIET_S, rng, dt,
-                                                               nameplate or plant)])[:n]
+        duty = np.concatenate([np.zeros(nq), open_loop_duty(duration_s - QUIET_S, rng, dt, nameplate)])[:n]
         tr = plant.simulate(duty=duty[:-1], angle_deg=math.degrees(plant.limp_home_rad))
         v = tr.angle_rad + noise if reading is None else reading.apply(tr.angle_rad, noise)
         y = np.degrees(sensor.measure(v, rng))
