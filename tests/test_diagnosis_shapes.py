@@ -219,3 +219,16 @@ def test_refined_airflow_table_leaves_the_torque_at_limp_home_to_the_spring():
     err = [1e3 * (static(twin, a) - static(truth, a)) for a in (0.0, 1.5, 3.0, 4.5, 6.0)]
     assert max(abs(e) for e in err) < 12.0, err
     assert np.any(np.isclose(ref.term.grid, truth.limp_home_rad))
+
+
+def test_the_stop_knots_of_a_table_are_not_read_as_the_torque():
+    """Knots on the stops (the grid's ends) are balanced by the stop's contact while the plate rests there: the
+    description leaves them out with the unvisited knots, however long the plate rested on them."""
+    from types import SimpleNamespace
+    from etb_gym.diagnose.unmodelled import identified
+    grid = np.radians(np.linspace(0.0, 90.0, 10))
+    angles = np.concatenate([np.full(500, 0.0), np.linspace(0.0, 55.0, 300), np.full(500, 90.0)])
+    data = SimpleNamespace(recs=[SimpleNamespace(rec=SimpleNamespace(angle_deg=angles))])
+    m = identified(grid, data)
+    assert not m[0] and not m[-1]                   # the stops, 500 samples each
+    assert m[1:6].all() and not m[7:].any()         # visited inside the stroke / never reached

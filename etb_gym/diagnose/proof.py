@@ -17,7 +17,8 @@ noise and 12-bit quantization, write the files, and run ``etb-gym diagnose`` on 
 Nameplates (``--nameplate random``): the truth's R, L, c_M, J, limp-home, stops, friction and spring levels are
 drawn from wide ranges (``synthetic.NAMEPLATE_RANGES``) and the tool is given a plant file of that nameplate
 whose friction and spring are 10-20 % off (``synthetic.nameplate_file_plant``); closed-loop runs use the PID
-designed on that plant file.
+designed on that plant file, open-loop runs an excitation scaled to it (``synthetic.DutyMap``: 3B's duties
+moved between the file's break-away and open-stop holding duties; on 3B they are unchanged).
 
 rows.jsonl survives SIGKILL: each finished run is appended as one line in a single write and flushed to disk;
 on --resume a torn last line (a run killed while its row was written) is dropped and that run is redone.
@@ -41,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io import write_atomic
+from ..plant import make_plant
 from ..plantfile import load_plant, save_plant
 from ..recordings import save_recording
 from .locate import moving_rms
@@ -96,11 +98,13 @@ def record_and_diagnose(name, seed, rng, truth, sensor_kw, args, workdir):
     colour = 0.5 if (seed // 4) % 2 else 0.0
     kw = dict(noise_deg=noise, colour=colour, **sensor_kw)
     rec_seed = int(rng.integers(1 << 30))
-    plant_file, ctrl = None, None
+    plant_file, ctrl, known = None, None, make_plant("3B")
     if args.nameplate == "random":              # the user's file: this nameplate, friction and spring 10-20 % off
         plant_file = Path(workdir) / f"{name}_{seed}_plant.toml"
         save_plant(nameplate_file_plant(truth, rng), plant_file)
-        ctrl = _controller(load_plant(plant_file))
+        known = load_plant(plant_file)
+        ctrl = _controller(known)
+    kw["nameplate"] = known                     # the open-loop excitation is scaled to the plant the tool is given
     rec = make_recording(truth, np.random.default_rng(rec_seed), duration_s=args.duration, closed=closed,
                          name=f"{name}_{seed}.csv", controller=ctrl, **kw)
     held = make_recording(truth, np.random.default_rng(rec_seed + 1), duration_s=args.duration, closed=not closed,

@@ -1,7 +1,10 @@
 """Rig-like recordings from a known ("truth") plant: the proof of the diagnosis and its tests use these.
 
 Excitation (duty at the control period): steps, ramps, a push to the open stop and a release from full
-open, a push into the closed stop, and a PRBS-like random duty. Closed loop: the package's reference PID
+open, a push into the closed stop, and a PRBS-like random duty; its levels are written for 3B and moved to the
+plant between its break-away duty at limp-home and its holding duty at the open stop (:class:`DutyMap`: the
+plant's spring, friction, R, c_M and supply), so a strong motor is not driven into its open stop and a weak one still travels. Closed
+loop: the package's reference PID
 (limp-home and friction compensation, designed on the nominal plant, not on the truth) tracks steps and
 ramps of the reference from the sensor's readings; the recorded voltage is what it commanded (so input and
 output are correlated, as on a real rig).
@@ -22,32 +25,82 @@ from ..recordings import Recording
 QUIET_S = 0.2
 
 
-def open_loop_duty(duration_s: float, rng: np.random.Generator, dt: float = 1e-3) -> np.ndarray:
-    """Steps, ramps, release from full open, closed-stop push and PRBS-like duty, randomly ordered levels."""
+def holding_duties(plant: Plant) -> tuple[float, float, float]:
+    """Three duties of ``plant`` through a quasi-static coil u = R T / c_M (the reference PID's feed-forward,
+    ``controllers.model.NominalModel``; the spring's torque from its own kernel, T_c its Coulomb level): the
+    break-away from limp-home towards open (spring just above limp-home + T_c), the hold at the open stop
+    arriving from below (spring there + T_c), and the push from limp-home into the closed stop (spring there
+    - T_c, negative). Not clipped (above 1 the motor cannot open fully). Without stops the travel is 3B's."""
+    from etb_gym.controllers.model import NominalModel
+    nom = NominalModel.from_plant(plant)
+    lh = nom.limp_home_rad
+    hi = plant.angle_max_rad if math.isfinite(plant.angle_max_rad) else lh + math.radians(87.0)
+    lo = plant.angle_min_rad if math.isfinite(plant.angle_min_rad) else lh - math.radians(3.0)
+    u = lambda T: nom.volts_per_Nm * T / nom.supply_V   # noqa: E731
+    return (u(nom.spring_torque_Nm(lh + 1e-6) + nom.coulomb_Nm), u(nom.spring_torque_Nm(hi) + nom.coulomb_Nm),
+            u(nom.spring_torque_Nm(lo) - nom.coulomb_Nm))
+
+
+MIN_RATIO = 0.05        # a plant without spring and friction still gets an excitation
+
+
+class DutyMap:
+    """The excitation's duties, written for 3B, moved to ``plant``: a positive level d goes to the same place
+    between break-away from limp-home (b) and the hold at the open stop (o) as on 3B,
+    d' = b' + (d - b) (o' - b') / (o - b); an amplitude scales with (o' - b') / (o - b); a push into the closed
+    stop with the closed-side duty ratio. For 3B (or a plant with 3B's spring, friction, R, c_M and supply)
+    every duty is returned unchanged."""
+
+    def __init__(self, plant: Plant | None):
+        from ..plant import make_plant
+        ref = holding_duties(make_plant("3B"))
+        own = holding_duties(plant) if plant is not None else ref
+        self.b_ref, self.b = ref[0], own[0]
+        self.ratio = max((own[1] - own[0]) / (ref[1] - ref[0]), MIN_RATIO)
+        self.closed_ratio = max(own[2] / ref[2], MIN_RATIO)
+
+    def level(self, d: float) -> float:
+        return d + (self.b - self.b_ref) + (d - self.b_ref) * (self.ratio - 1.0)
+
+    def amplitude(self, a: float) -> float:
+        return a * self.ratio
+
+    def closed(self, d: float) -> float:
+        return d * self.closed_ratio
+
+
+def open_loop_duty(duration_s: float, rng: np.random.Generator, dt: float = 1e-3, plant: Plant | None = None
+                   ) -> np.ndarray:
+    """Steps, ramps, release from full open, closed-stop push and PRBS-like duty, randomly ordered levels.
+    The levels are written for 3B (steps 0.15-0.75, ramps to 0.4-0.9, full open 1.0, closed push -0.5..-0.25,
+    PRBS around 0.25-0.55) and moved to ``plant`` by :class:`DutyMap` (default: 3B, unchanged), so a strong
+    motor is not driven into its open stop and a weak one still travels."""
+    dm = DutyMap(plant)
     n = int(round(duration_s / dt))
     parts = []
+
     def hold(level, s):
         parts.append(np.full(int(s / dt), float(level)))
     while sum(p.size for p in parts) < n:
         kind = rng.integers(0, 5)
         if kind == 0:                                   # a few steps
             for _ in range(3):
-                hold(rng.uniform(0.15, 0.75), rng.uniform(0.2, 0.5))
+                hold(dm.level(rng.uniform(0.15, 0.75)), rng.uniform(0.2, 0.5))
         elif kind == 1:                                 # ramp up and down
-            top = rng.uniform(0.4, 0.9)
+            top = dm.level(rng.uniform(0.4, 0.9))
             m = int(rng.uniform(0.4, 0.8) / dt)
             parts.append(np.linspace(0.0, top, m))
             parts.append(np.linspace(top, 0.0, m))
         elif kind == 2:                                 # full open, then release
-            hold(1.0, rng.uniform(0.2, 0.4))
+            hold(dm.level(1.0), rng.uniform(0.2, 0.4))
             hold(0.0, rng.uniform(0.3, 0.5))
         elif kind == 3:                                 # into the closed stop
-            hold(rng.uniform(-0.5, -0.25), rng.uniform(0.15, 0.3))
+            hold(dm.closed(rng.uniform(-0.5, -0.25)), rng.uniform(0.15, 0.3))
             hold(0.0, 0.2)
         else:                                           # PRBS-like
             m = int(rng.uniform(0.5, 1.0) / dt)
-            base = rng.uniform(0.25, 0.55)
-            amp = rng.uniform(0.1, 0.25)
+            base = dm.level(rng.uniform(0.25, 0.55))
+            amp = dm.amplitude(rng.uniform(0.1, 0.25))
             hold_n = int(rng.integers(15, 60))
             bits = rng.integers(0, 2, size=m // hold_n + 1) * 2 - 1
             parts.append(base + amp * np.repeat(bits, hold_n)[:m])
@@ -102,12 +155,15 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
                    noise_deg: float = 0.01, resolution_deg: float = 90.0 / 4096, colour: float = 0.0,
                    offset_deg: float = 0.0, gain: float = 1.0, delay_steps: int = 0,
                    current_noise_A: float = 0.01, with_current: bool = True, name: str = "rec.csv",
-                   controller=None, reading=None) -> Recording:
+                   controller=None, reading=None, nameplate: Plant | None = None) -> Recording:
     """One rig-like recording of ``plant`` (the truth). ``colour`` in [0, 1): AR(1) coefficient of the noise.
     Closed loop: ``controller`` (default: the reference PID designed on the nominal 3B plant; for another
     nameplate pass one designed on that nameplate) acts on these same readings (noise, quantization,
     offset/gain, delay). ``reading``: a truth shape of the reading (``proof``'s truth_shapes.SensorShape: its
-    ``stream(phi, noise)`` gives, sample by sample, what the sensor then reads), or None."""
+    ``stream(phi, noise)`` gives, sample by sample, what the sensor then reads), or None. ``nameplate``: the
+    plant the open-loop excitation is scaled to (:class:`DutyMap`; what the rig's operator knows, e.g. the
+    user's plant file, or ``plant`` itself); default None: 3B's duties unscaled, as before the scaling (the
+    tests' recordings keep their excitation)."""
     dt = plant.control_period_s
     nq = int(round(QUIET_S / dt))                    # the rig idles (duty 0) before the run starts
     n = nq + int(round((duration_s - QUIET_S) / dt))
@@ -136,7 +192,7 @@ def make_recording(plant: Plant, rng: np.random.Generator, *, duration_s: float 
                                  enable_k=nq)
         cur = X[:, 2]
     else:
-        duty = np.concatenate([np.zeros(nq), open_loop_duty(duration_s - QUIET_S, rng, dt)])[:n]
+        duty = np.concatenate([np.zeros(nq), open_loop_duty(duration_s - QUIET_S, rng, dt, nameplate)])[:n]
         tr = plant.simulate(duty=duty[:-1], angle_deg=math.degrees(plant.limp_home_rad))
         v = tr.angle_rad + noise if reading is None else reading.apply(tr.angle_rad, noise)
         y = np.degrees(sensor.measure(v, rng))

@@ -201,6 +201,17 @@ def _visited(grid_rad: np.ndarray, data: Data) -> np.ndarray:
     return np.histogram(phi, edges)[0].astype(float)
 
 
+def identified(grid_rad: np.ndarray, data: Data) -> np.ndarray:
+    """Knots whose table value the recordings identify: visited (>= 5 samples near them) and not an end knot.
+    The stroke's tables end on the stops (``shapes.angle_grid``), where the stop's contact force balances
+    whatever the table holds while the plate rests there: an end knot's value is not the torque's (a detent's
+    table read at its closed-stop knot +0.013 N m, the largest of the table, and hid its period; round 11)."""
+    vis = _visited(grid_rad, data)
+    m = vis >= 5
+    m[[0, -1]] = False
+    return m
+
+
 def describe(g: Generic, data: Data) -> dict:
     """Words and numbers for the generic tables: which matter, periodic or not, speed, direction, current."""
     base_rms = g.rms_deg
@@ -212,7 +223,7 @@ def describe(g: Generic, data: Data) -> dict:
     ta = g.tables["unmodelled_angle"]
     grid = np.asarray(ta.params.angle_rad)
     vis = _visited(grid, data)
-    m = vis >= 5
+    m = identified(grid, data)
     adeg = np.degrees(grid)
     tq = np.asarray(ta.params.torque_Nm)
     per = periodicity(adeg[m], tq[m], np.minimum(vis[m], 200.0), resolvable(adeg)) if m.sum() >= 8 else \
@@ -250,7 +261,7 @@ def describe(g: Generic, data: Data) -> dict:
             cper = {"periodic": False}
             if cg.size >= 20:                           # fine grid: is the current's torque periodic in angle?
                 cv = _visited(cg, data)
-                cm = cv >= 5
+                cm = identified(cg, data)
                 if cm.sum() >= 8:
                     cper = periodicity(np.degrees(cg[cm]), dk[cm], np.minimum(cv[cm], 200.0),
                                        resolvable(np.degrees(cg)))
