@@ -34,7 +34,7 @@ def pcg_words(rng: np.random.Generator, out: np.ndarray) -> np.ndarray:
 def set_pcg_words(rng: np.random.Generator, words: np.ndarray) -> None:
     """Set the PCG64 state of ``rng`` to ``words`` (as :func:`pcg_words` writes them; the 32-bit buffer kept)."""
     st = rng.bit_generator.state
-    st["state"]["state"] = (int(words[0]) << 64) | int(words[1])
+    st["state"] = {"state": (int(words[0]) << 64) | int(words[1]), "inc": (int(words[2]) << 64) | int(words[3])}
     rng.bit_generator.state = st
 
 

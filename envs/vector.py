@@ -145,7 +145,7 @@ class ETBVectorEnv(VectorEnv):
         self._info_cols = np.array([k for _, k in torques], np.int64)
         self._info_keys = tuple((key, "_" + key) for key in INFO_KEYS + tuple(key for key, _ in torques) + ("t_s",))
         self._started = False
-        self._step_fn = vector_step_for(p)
+        self._step_fn = vector_step_for(p, parallel=self.num_threads > 1)
         ensure_thread_pool()      # before numba's pool starts, or it spins (etb_gym/threadpool.py)
 
     # ------------------------------------------------------------------------------ per-row resets
@@ -248,7 +248,7 @@ class ETBVectorEnv(VectorEnv):
         trunc = np.empty(N, bool)
         obs = self._obs
         info = np.empty((len(self._info_keys), N + INFO_PAD))
-        prev = _set_threads(self.num_threads)
+        prev = _set_threads(self.num_threads) if self.num_threads > 1 else 1
         try:
             self._step_fn(d, ignored, self._X, self._P, self._V, self._K, self._AUX, self._T0, self._DX, self._OK,
                           self._duty, kn.dt, kn.substeps, kn.switching, kn.pwm_frequency_hz, self._tab, kn.max_steps,

@@ -163,25 +163,31 @@ from {stepper} import control_step_group as group_step, control_step_dx as one_s
 from etb_gym.envs.kernel import RAD2DEG, step_reward
 from etb_gym.envs.vector_kernel import GROUP, observe_row
 from etb_gym.kernel_cache import borrow
+'''
 
-@njit(parallel=True, cache=True)'''
-
-_built: dict = {}      # stepper namespace id -> vector_step
+_built: dict = {}      # (stepper namespace id, parallel) -> vector_step
 
 
-def vector_step_for(plant):
-    """The compiled (or, on the plain path, plain) ``vector_step`` of ``plant``'s composition (built once)."""
+def serial_source() -> str:
+    """TEMPLATE as ``vector_step_serial``: the same loop on the calling thread (no thread-pool launch, ~2 us)."""
+    return TEMPLATE.replace("def vector_step(", "def vector_step_serial(").replace("prange(", "range(")
+
+
+def vector_step_for(plant, parallel: bool):
+    """The compiled (or, on the plain path, plain) ``vector_step`` of ``plant``'s composition, in parallel over the
+    sub-envs or on the calling thread (each built once, compiled on its first call)."""
     fn = py_func(plant.engine.fns.batch_step)
-    key = id(fn.__globals__)
+    key = (id(fn.__globals__), bool(parallel))
     if key not in _built:
-        _built[key] = _build(fn.__globals__, fn.__module__, bool(plant.fast))
+        _built[key] = _build(fn.__globals__, fn.__module__, bool(plant.fast), bool(parallel))
     return _built[key]
 
 
-def _build(stepper_ns: dict, stepper_module, fast: bool):
+def _build(stepper_ns: dict, stepper_module, fast: bool, parallel: bool):
     if fast and stepper_module in sys.modules and str(stepper_module).startswith("etb_gym_kernels."):
         try:
-            return _load_cached(stepper_module)
+            mod = _load_cached(stepper_module)
+            return mod.vector_step if parallel else mod.vector_step_serial
         except OSError:
             pass
     ns = {"group_step": stepper_ns["control_step_group"], "one_step": stepper_ns["control_step_dx"],
@@ -190,8 +196,8 @@ def _build(stepper_ns: dict, stepper_module, fast: bool):
         import numba
 
         ns.update(prange=numba.prange, borrow=borrow)
-        exec(compile(TEMPLATE, "<etb_gym vector step>", "exec"), ns)
-        return numba.njit(parallel=True)(ns["vector_step"])
+        exec(compile(TEMPLATE if parallel else serial_source(), "<etb_gym vector step>", "exec"), ns)
+        return numba.njit(parallel=parallel)(ns["vector_step" if parallel else "vector_step_serial"])
     ns.update(prange=range, borrow=identity, step_reward=py_func(step_reward), observe_row=py_func(observe_row))
     exec(compile(TEMPLATE, "<etb_gym plain vector step>", "exec"), ns)
     return ns["vector_step"]
@@ -204,7 +210,8 @@ def _load_cached(stepper_module: str):
     from etb_gym.io import write_atomic
     from etb_gym.kernel_cache import compile_under_lock
 
-    src = _HEADER.format(stepper=stepper_module) + TEMPLATE
+    src = (_HEADER.format(stepper=stepper_module) + "\n@njit(parallel=True, cache=True)" + TEMPLATE
+           + "\n@njit(cache=True)" + serial_source())
     # numba's cache does not see a change in a callee's module: the digest covers their sources
     deps = "".join(inspect.getsource(m) for m in (sys.modules[__name__], kernel_mod, noise, observation, sensor))
     digest = hashlib.sha256((src + deps + numba.__version__).encode()).hexdigest()[:20]
@@ -221,4 +228,5 @@ def _load_cached(stepper_module: str):
         sys.modules[name] = mod
         spec.loader.exec_module(mod)
         compile_under_lock(mod.vector_step, d / f"etb_vector_{digest}.lock")
-    return mod.vector_step
+        compile_under_lock(mod.vector_step_serial, d / f"etb_vector_{digest}.lock")
+    return mod
