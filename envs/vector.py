@@ -7,10 +7,14 @@
 It is the same MDP as N :class:`~etb_gym.envs.env.ETBEnv` in a ``SyncVectorEnv``, step for step and bit for
 bit (tests/test_envs_vector.py): sub-env k owns a generator seeded like ``SyncVectorEnv`` seeds it
 (``seed + k``), draws its episodes with the single env's :meth:`ETBEnv.draw_episode`, and reads its
-sensor from noise blocks drawn in the same order. The plants advance together through
-``Plant.step_batch``; reward, sensing, observation and info of all sub-envs are then one compiled loop
-(:func:`step_rewards`, :func:`observe_rows`) that calls the single env's kernels (``step_reward``,
-``sense``, ``delay_push``, ``observation.encode_into``) per sub-env. All it takes from the single env is its
+sensor from noise blocks drawn in the same order. A step is one compiled call,
+``vector_step`` (envs/vector_kernel.py), in parallel over the sub-envs: each thread steps its plants (the
+composition's stepper, as ``Plant.step_batch`` calls it) and then computes their reward, reading, observation
+and info with the single env's kernels (``step_reward``, ``sense``, ``delay_push``, ``observation.encode_into``),
+drawing a sub-env's next noise block itself when the current one is used up (envs/noise.py: numpy's PCG64 and
+ziggurat in compiled code, the same numbers; each sub-env's generator state travels between its
+``np.random.Generator``, which draws its episodes at resets, and the step). Python around it only checks the
+actions, resets the sub-envs that were truncated and builds the info dict. All it takes from the single env is its
 public :class:`~etb_gym.envs.kernel.EnvKernel` (``env.kernel``: stepper, constants, observation layout) and
 its episode draws (tests/test_envs_vector.py checks that this module reads no private attribute of it).
 Autoreset is Gymnasium's default ``NEXT_STEP`` mode: the step after a sub-env is truncated resets it
@@ -18,12 +22,11 @@ Autoreset is Gymnasium's default ``NEXT_STEP`` mode: the step after a sub-env is
 with ``_key`` masks, as ``SyncVectorEnv`` builds it. Rendering is not supported here (use
 ``vectorization_mode="sync"`` to render sub-envs).
 
-``num_threads`` (keyword) sets the threads of the parallel batch step. Default: 1 below 64 sub-envs
-(waking a thread pool costs more than stepping a few dozen plants), else numba's thread count. The pool
-sleeps while it waits (etb_gym.integrate.configure_thread_pool), so on a shared machine it costs no
-more CPU than one thread and still uses whatever the other core has left: measured on the loaded 2-core
-machine of docs/speed.md, N = 1024 stepped 690k plant-steps/s with 2 threads vs 455k with 1 (N = 256:
-470k vs 348k; N = 64: 233k vs 202k). Results do not depend on it.
+``num_threads`` (keyword) sets the threads of the step. Default: 1 below 64 sub-envs (waking a thread pool
+costs more than stepping a few dozen plants; one thread runs ``vector_step_serial``, no pool at all), else
+numba's thread count. The pool sleeps while it waits (etb_gym.threadpool), so on a shared machine it costs no
+more CPU than one thread and still uses whatever the other core has left (docs/speed.md). Results do not
+depend on it.
 """
 from __future__ import annotations
 
@@ -143,9 +146,16 @@ class ETBVectorEnv(VectorEnv):
         self._state_scale = kn.observed_state_scale
         torques = kn.info_torques
         self._info_cols = np.array([k for _, k in torques], np.int64)
-        self._info_keys = tuple((key, "_" + key) for key in INFO_KEYS + tuple(key for key, _ in torques) + ("t_s",))
+        self._info_keys = INFO_KEYS + tuple(key for key, _ in torques) + ("t_s",)
+        self._mask_keys = tuple("_" + key for key in self._info_keys)
         self._started = False
         self._step_fn = vector_step_for(p, parallel=self.num_threads > 1)
+        # vector_step's arguments between the actions and the outputs: the same arrays at every step
+        self._step_args = (self._autoreset, self._X, self._P, self._V, self._K, self._AUX, self._T0, self._DX,
+                           self._OK, self._duty, kn.dt, kn.substeps, kn.switching, kn.pwm_frequency_hz, self._tab,
+                           kn.max_steps, kn.reward_weights, self._dbuf, self._dpos, self._noise, self._npos,
+                           self._noise_std, self._words, kn.sensor, kn.observe_current, kn.observe_supply,
+                           self._state_scale, kn.clip_obs, kn.obs_low, kn.obs_high, self._info_cols)
         ensure_thread_pool()      # before numba's pool starts, or it spins (etb_gym/threadpool.py)
 
     # ------------------------------------------------------------------------------ per-row resets
@@ -189,10 +199,8 @@ class ETBVectorEnv(VectorEnv):
 
     def _info_dict(self, info, mask):
         """SyncVectorEnv's info layout: each key's array (a row of the info matrix) and its ``_key`` mask."""
-        out = {}
-        for (key, mkey), values in zip(self._info_keys, info):
-            out[key] = values
-            out[mkey] = mask
+        out = dict(zip(self._info_keys, info))
+        out.update(dict.fromkeys(self._mask_keys, mask))
         return out
 
     # ------------------------------------------------------------------------------ VectorEnv API
@@ -243,18 +251,14 @@ class ETBVectorEnv(VectorEnv):
         bad = clip_duties(a, self._autoreset, d)
         if bad >= 0:
             raise ValueError(f"actions[{bad}] = {float(a[bad])!r}: expected a finite duty cycle in [-1, 1]")
-        kn, ignored = self.kernel, self._autoreset
+        ignored = self._autoreset
         reward = np.empty(N)
         trunc = np.empty(N, bool)
         obs = self._obs
         info = np.empty((len(self._info_keys), N + INFO_PAD))
         prev = _set_threads(self.num_threads) if self.num_threads > 1 else 1
         try:
-            self._step_fn(d, ignored, self._X, self._P, self._V, self._K, self._AUX, self._T0, self._DX, self._OK,
-                          self._duty, kn.dt, kn.substeps, kn.switching, kn.pwm_frequency_hz, self._tab, kn.max_steps,
-                          kn.reward_weights, self._dbuf, self._dpos, self._noise, self._npos, self._noise_std,
-                          self._words, kn.sensor, kn.observe_current, kn.observe_supply, self._state_scale,
-                          kn.clip_obs, kn.obs_low, kn.obs_high, self._info_cols, reward, trunc, obs, info)
+            self._step_fn(d, *self._step_args, reward, trunc, obs, info)
         finally:
             if prev != self.num_threads:
                 _set_threads(prev)
