@@ -8,9 +8,9 @@ from etb_gym.envs.vector import ETBVectorEnv
 from etb_gym.jit import HAVE_NUMBA
 
 
-def _compare(kw, n_envs=3, n_steps=None, seed=11, options=None):
-    nat = gym.make_vec("ETB-3B-v0", num_envs=n_envs, **kw)
-    syn = gym.make_vec("ETB-3B-v0", num_envs=n_envs, vectorization_mode="sync", **kw)
+def _compare(kw, n_envs=3, n_steps=None, seed=11, options=None, env_id="ETB-3B-v0", num_threads=None):
+    nat = gym.make_vec(env_id, num_envs=n_envs, num_threads=num_threads, **kw)
+    syn = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="sync", **kw)
     assert isinstance(nat.unwrapped, ETBVectorEnv)
     assert nat.single_observation_space == syn.single_observation_space
     assert nat.action_space == syn.action_space
@@ -124,15 +124,5 @@ def test_compiled_noise_is_numpys_standard_normal():
 def test_parallel_vector_step_equals_sync():
     """The parallel vector step (num_threads=2, lockstep groups of two plants and an odd one) equals N single envs,
     noise refills (every 128 steps) and autoresets included."""
-    nat = gym.make_vec("ETB-1A-v0", num_envs=5, num_threads=2, episode_s=0.15, observe_current=True)
-    syn = gym.make_vec("ETB-1A-v0", num_envs=5, vectorization_mode="sync", episode_s=0.15, observe_current=True)
-    o1, _ = nat.reset(seed=21)
-    o2, _ = syn.reset(seed=21)
-    assert np.array_equal(o1, o2)
-    rng = np.random.default_rng(2)
-    for t in range(300):
-        a = rng.uniform(-1.2, 1.2, (5, 1)).astype(np.float32)
-        r1, r2 = nat.step(a), syn.step(a)
-        for x, y in zip(r1[:4], r2[:4]):
-            assert np.array_equal(x, y), f"step {t}"
-        _same(r1[0], r2[0], r1[4], r2[4])
+    assert _compare(dict(episode_s=0.15, observe_current=True), n_envs=5, n_steps=300, seed=21, env_id="ETB-1A-v0",
+                    num_threads=2)
