@@ -308,7 +308,7 @@ def simulate(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, X, A):
     aux = np.zeros(N_AUX)
     dx = np.empty(N_SCRATCH)
     Pr = borrow(P, True)    # read-only type: control_step_dx compiles once, whatever the caller's P (borrow)
-    rhs(t0, x, duty[0] * supply_V[0], P, dx, aux)
+    rhs(t0, x, duty[0] * supply_V[0], Pr, dx, aux)     # called, not inlined: the rhs Plant.initial_state compiled
     for j in range(N_STATES):
         X[0, j] = x[j]
     for j in range(N_AUX):
@@ -332,7 +332,7 @@ def observe(x0, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, y, gain, lag
     aux = np.zeros(N_AUX)
     dx = np.empty(N_SCRATCH)
     Pr = borrow(P, True)    # read-only type: control_step_dx compiles once, whatever the caller's P (borrow)
-    rhs(t0, x, duty[0] * supply_V[0], P, dx, aux)
+    rhs(t0, x, duty[0] * supply_V[0], Pr, dx, aux)     # called, not inlined: the rhs Plant.initial_state compiled
     for j in range(N_STATES):
         X[0, j] = x[j]
     for j in range(N_AUX):
@@ -390,19 +390,18 @@ def batch_step(X, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, AUX, OK):
     Xb = borrow(X)
     Pb = borrow(P, True)
     Ab = borrow(AUX)
-    if switching:
-        for b in prange(n):
+    ng = 0              # switching PWM: every plant on its own (the lockstep group averages the PWM)
+    if not switching:
+        ng = n // GROUP
+    # One parallel loop for both PWM modes: numba lowers each prange into a gufunc of its own (two cost ~2 s more
+    # compile per composition); the plants run exactly the operations they ran in the two loops.
+    for j in prange(ng + n - ng * GROUP):
+        if j < ng:
+            control_step_group(Xb, duty, supply_V, Pb, t0, Ab, DX, OK, j * GROUP, dt, n_sub)
+        else:
+            b = ng * GROUP + j - ng
             OK[b] = control_step_dx(Xb[b], duty[b], supply_V[b], Pb[b], t0[b], dt, n_sub, switching, f_pwm,
                                     Ab[b], DX[b])
-    else:
-        ng = n // GROUP
-        for j in prange(ng + n - ng * GROUP):
-            if j < ng:
-                control_step_group(Xb, duty, supply_V, Pb, t0, Ab, DX, OK, j * GROUP, dt, n_sub)
-            else:
-                b = ng * GROUP + j - ng
-                OK[b] = control_step_dx(Xb[b], duty[b], supply_V[b], Pb[b], t0[b], dt, n_sub, switching, f_pwm,
-                                        Ab[b], DX[b])
 
 
 def batch_step_serial(X, duty, supply_V, P, t0, dt, n_sub, switching, f_pwm, AUX, OK):
@@ -434,7 +433,7 @@ def substeps_used(dt: float, n_sub: int) -> int:
 # the kernels' slices (measured: -35 % CPU per plant-step for 3B, docs/speed.md). No fastmath: it would
 # change rounding against the plain path (contract -> FMA) or fold away the finiteness check (nnan/ninf).
 JIT_OPTIONS = {
-    "rhs": {"inline": "always"},
+    "rhs": {},            # called once per simulate/observe: the compiled rhs of Plant.initial_state (read-only P)
     "rhs_carried": {"inline": "always"},
     "rhs_stage": {"inline": "always"},
     "substep": {"inline": "always"},
@@ -453,7 +452,7 @@ JIT_OPTIONS = {
     "batch_step": {"parallel": True},
     "batch_step_serial": {},
 }
-STEPPER_REVISION = "8"   # bump when kernel_cache.borrow() or JIT_OPTIONS change: part of the kernel-cache digest
+STEPPER_REVISION = "9"   # bump when kernel_cache.borrow() or JIT_OPTIONS change: part of the kernel-cache digest
 
 
 class Engine:

@@ -141,10 +141,11 @@ def structure_row(rec, base) -> dict:
     spec = Spec(b)
     nom = polish(F.calibrate(spec, restart_view(data), max_nfev=40), data)
     numerical_tolerance(spec, nom.x, data)
-    pred = simulate(*spec.build(nom.x), data)
+    plant, sensor = spec.build(nom.x)
+    pred = simulate(plant, sensor, data)
     r = angle_residuals_deg(pred, data)
     rd = data.recs[0]
-    st = D.persistent(rd, pred[0]) if rd.residual == "observer" else []
+    st = D.persistent(rd, pred[0], plant) if rd.residual == "observer" else []
     return {"residual": rd.residual, "rms_over_noise": float(math.sqrt(np.mean(r[0] ** 2)) / rd.noise_deg),
             "windows": len(L.windows(rec.t_s, r[0], rd.noise_deg, rd.tol_deg)),
             "significant_today": bool(significant_residual(data, r)),
@@ -212,7 +213,12 @@ def main(argv=None):
                        named_first=(not ids) if fam is None else bool(ids) and ids[0] == fam.split("@")[0],
                        rms_before=rep["rms_before_deg"], rms_after=rep["rms_after_deg"],
                        noise=rep["noise_floor_deg"], cpu_s=rep.get("cpu_s"),
-                       persistent=rep.get("persistent_structure"))
+                       persistent=rep.get("persistent_structure"),
+                       outside=[{"id": u["id"], "description": u.get("description"),
+                                 "period_deg": next((d.get("period_deg") for d in (u.get("shape", {}).get("angle", {}),
+                                                                                 u.get("shape", {}).get("current", {}))
+                                                     if d.get("periodic")), None)}
+                                for u in rep.get("unexplained", []) if u.get("outside_catalogue")])
             txt = f"{row['verdict']:16s} {ids} named_first={row['named_first']} cpu {rep.get('cpu_s', 0):.1f} s"
         row["time_s"] = round(time.perf_counter() - t0, 1)
         print(f"{case:24s} s{seed} size {size if size is not None else '-'}  {txt}  ({row['time_s']} s)", flush=True)

@@ -139,16 +139,69 @@ def test_persistent_structure_statistic_is_null_on_noise_and_large_on_a_feature_
 
 def test_closed_loop_current_residual_structure_tells_a_wrong_resistance_from_the_exact_model():
     """disturbance.persistent_mismatch on a closed loop (default PID): a model whose resistance is 5 % off
-    leaves a persistent structure in its current residual, the truth's own model none; a replayed (open-loop)
+    leaves a persistent structure in its current residual, one whose spring preload is 8 % off in the angle
+    innovation over steady motion (not in the current), the truth's own model none; a replayed (open-loop)
     recording is left to the replay's tests."""
     from etb_gym.diagnose import disturbance as D
     truth = truth_3b(5)
-    rec = make_recording(truth, np.random.default_rng(105), duration_s=2.0, closed=True, noise_deg=0.01,
+    rec = make_recording(truth, np.random.default_rng(109), duration_s=2.0, closed=True, noise_deg=0.01,
                          name="c.csv")
     data = prepare([rec], 12.0, residual="observer")
     own = D.persistent_mismatch(data, truth, SensorModel())
-    assert [s.kind for s in own] == ["angle", "current"] and not D.detected(own), [s.as_dict() for s in own]
+    # (on this recording the whole angle innovation of the truth's own model reads z 21: a stick-slip transient;
+    # over steady motion it is within the null)
+    assert [s.kind for s in own] == ["angle", "motion", "current"] and not D.detected(own), [s.as_dict() for s in own]
     R = truth.params_dict()["drive.resistance_ohm"]
-    off = D.persistent_mismatch(data, truth.with_params({"drive.resistance_ohm": 1.05 * R}), SensorModel())
-    assert D.detected(off) and off[1].significant and off[1].z > D.Z_DETECT, [s.as_dict() for s in off]
+    off = {s.kind: s for s in D.persistent_mismatch(data, truth.with_params({"drive.resistance_ohm": 1.05 * R}),
+                                                    SensorModel())}
+    assert off["current"].significant and off["current"].z > D.Z_DETECT, {k: s.as_dict() for k, s in off.items()}
+    assert D.deciding_z(off.values()) == max(off["current"].z, off["motion"].z)
+    # a torque the current does not see (the spring's preload 8 % off): the loop holds the plate, the current
+    # residual stays within its null, the angle innovation over steady motion carries it
+    P = truth.params_dict()["spring.preload_Nm"]
+    spring = {s.kind: s for s in D.persistent_mismatch(data, truth.with_params({"spring.preload_Nm": 1.08 * P}),
+                                                       SensorModel())}
+    assert spring["motion"].significant and not spring["current"].significant, \
+        {k: s.as_dict() for k, s in spring.items()}
     assert D.persistent_mismatch(prepare([rec], 12.0, residual="replay"), truth, SensorModel()) == []
+
+
+def test_steady_motion_drops_slow_samples_and_those_near_a_reversal():
+    """disturbance.steady_motion: a sample counts when the speed stayed above w_min (the friction's transition
+    speed x MOTION_STRIBECK, or the speed estimate's noise x MOTION_NOISE) from MOTION_SETTLE_S before it to
+    MOTION_AFTER_S after it."""
+    from types import SimpleNamespace
+
+    from etb_gym.diagnose import disturbance as D
+    dt = 1e-3
+    t = np.arange(3000) * dt
+    y = 40.0 + 30.0 * np.sin(2 * np.pi * 0.5 * t)                  # reversals at t = 0.5, 1.5, 2.5 s
+    rec = SimpleNamespace(angle_deg=y, t_s=t, dt_s=dt)
+    m = D.steady_motion(rec, 0.01, 0.05)
+    w_min = D.MOTION_STRIBECK * math.degrees(0.05)
+    speed = np.abs(30.0 * 2 * np.pi * 0.5 * np.cos(2 * np.pi * 0.5 * t))
+    inner = slice(100, -100)
+    assert np.all(speed[inner][m[inner]] > w_min)
+    settle = int(D.MOTION_SETTLE_S / dt)
+    k_leave = np.flatnonzero((speed[:-1] > w_min) & (speed[1:] <= w_min))[0]      # slowing towards t = 0.5 s
+    k_back = np.flatnonzero((speed[:-1] <= w_min) & (speed[1:] > w_min))[0] + 1    # moving again
+    assert not m[k_back: k_back + settle - 2].any() and m[k_back + settle + 2]
+    assert not m[k_leave - int(D.MOTION_AFTER_S / dt) + 2] and m[k_leave - int(D.MOTION_AFTER_S / dt) - 2]
+    # a noisier reading raises w_min: 5 x noise / (15 dt)
+    noisy = D.steady_motion(rec, 1.0, 0.0)
+    assert noisy.sum() < m.sum() and np.all(speed[inner][noisy[inner]] > D.MOTION_NOISE * 1.0 / (D.SPEED_SMOOTH * dt))
+
+
+def test_generic_tables_are_kept_on_a_closed_loop_structure_only_when_they_account_for_it():
+    """refine._accounts: the generic tables replace the catalogue model on a closed loop when the catalogue
+    model leaves a significant persistent structure and the tables leave at most disturbance.resolved's share."""
+    from etb_gym.diagnose import disturbance as D
+    from etb_gym.diagnose.refine import _accounts
+    z = {"catalogue": 20.0, "tables": 9.0}
+    log = []
+    assert _accounts(z.get, "catalogue", "tables", log.append) and "accounted for" in log[-1]
+    z["tables"] = 15.0                                      # most of it left
+    assert not _accounts(z.get, "catalogue", "tables", log.append)
+    z["catalogue"], z["tables"] = D.Z_DETECT - 0.5, 0.0    # nothing significant to account for
+    assert not _accounts(z.get, "catalogue", "tables", log.append)
+    assert not _accounts(None, "catalogue", "tables", log.append)

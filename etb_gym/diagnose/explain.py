@@ -18,7 +18,8 @@ Rounds repeat (two or more concurrent effects) while the remaining residual is s
 
 Closed loops (``persistent``: disturbance.py). A loop hides an effect in the angle, not in the current it had
 to apply, so a coil heating or a flux loss can leave the angle's held-out error and RMS as they were while the
-current residual carries a persistent structure. Where the current model has one and no candidate passes the
+current residual carries a persistent structure (a torque on the plate only, a detent: the angle innovation
+over steady motion; disturbance.deciding_z takes the larger). Where the current model has one and no candidate passes the
 held-out gain, the screened candidates (dBIC < -BIC_MIN) are tried in order of dBIC, and one is accepted when
 its full fit accounts for the structure (disturbance.resolved: the same statistic that found it, at most
 RESOLVE_SHARE = half of its z left). While such a structure stands, a candidate that accounts for it is accepted
@@ -246,10 +247,10 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolv
             return c, g, full
         if resolves is not None and resolves(full):
             ctx.log(f"  {c}: angle RMS x{ratio:.2f}, but it accounts for the persistent structure of the closed "
-                    "loop's current residual: accepted")
+                    "loop's residuals (current, steady motion): accepted")
             return c, g, full
         ctx.log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f})"
-                + (" and the current's persistent structure stays" if resolves is not None else "") + ": not accepted")
+                + (" and the persistent structure stays" if resolves is not None else "") + ": not accepted")
         if resolves is None and not (evidence is not None and c == evidence["winner"]):
             return None                     # (the physics' choice falling short lets the next one try)
     return None
@@ -297,7 +298,7 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         if z_cur > disturbance.Z_DETECT:        # a closed loop's current residual: its structure can decide
             def resolves(fr, z=z_cur):
                 z_new = persistent(fr)
-                ctx.log(f"  the current residual's persistent structure: z {z:.1f} -> {z_new:.1f}")
+                ctx.log(f"  the closed loop's persistent structure: z {z:.1f} -> {z_new:.1f}")
                 return disturbance.resolved(z, z_new)
         if passing:
             passing.sort(key=lambda s: -s[0])

@@ -114,12 +114,32 @@ def _heldout_catalogue(nominal: F.FitResult, cur: F.FitResult, steps, refinement
     return heldout_error(Problem.make(cur.spec, cur.x, ids), data)
 
 
+def _accounts(persistent, cur: F.FitResult, generic: F.FitResult, log) -> bool:
+    """Do the generic tables account for the closed-loop persistent structure the catalogue model ``cur``
+    leaves (disturbance.resolved)? False without ``persistent`` or without a significant structure."""
+    if persistent is None:
+        return False
+    from . import disturbance
+    z_cur = persistent(cur)
+    if z_cur <= disturbance.Z_DETECT:
+        return False
+    z_gen = persistent(generic)
+    ok = disturbance.resolved(z_cur, z_gen)
+    log(f"  generic tables: the closed loop's persistent structure z {z_cur:.1f} -> {z_gen:.1f}"
+        + (": accounted for" if ok else ""))
+    return ok
+
+
 def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, significant, log=print,
-           outside: bool = True):
+           outside: bool = True, persistent=None):
     """After the greedy selection: refine each accepted family's shape by its table (kept when the held-out
     error falls by MIN_GAIN), then, if a significant residual remains (or nothing was accepted, or a learned
     angle table looks periodic), fit the generic tables of :mod:`.unmodelled` and let them replace the
-    catalogue's explanation when they predict held-out data better. Returns (final fit, steps, Outcome)."""
+    catalogue's explanation when they predict held-out data better, or, with ``persistent`` (FitResult ->
+    the deciding z of a closed loop's persistent structure, disturbance.py), when the catalogue model leaves a
+    significant structure that the tables account for (disturbance.resolved: the rule that accepts a
+    catalogue candidate on it; a loop hides the effect from the held-out angle). Returns (final fit, steps,
+    Outcome)."""
     from . import unmodelled as U
     res = Outcome()
     cur = final
@@ -162,7 +182,7 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
             g = gc
     res.generic = g
     rms_nom = U._rms_deg(nominal.spec, nominal.x, data)
-    if U.compare(g, h_cat, rms_nom, data):
+    if U.compare(g, h_cat, rms_nom, data) or _accounts(persistent, cur, g.fit, log):
         named = {st.id for st in steps}
         dom = g.shape.get("significant_terms", [])
         same = (dom and U.periodic_term(g.shape) is None

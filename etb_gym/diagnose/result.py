@@ -49,12 +49,13 @@ def significant_residual(data: Data, res: list) -> bool:
 
 
 def significant_mismatch(data: Data, res: list, plant, sensor, z_ref: float | None = None) -> bool:
-    """:func:`significant_residual`, or a persistent structure in the current residual of a recording scored by
-    the observer (a closed loop: the loop hides an effect in the angle, not in the current it needed;
-    disturbance.py). ``res``: the angle residuals of the model (``plant``, ``sensor``). ``z_ref``: the nominal
-    model's current z; a structure that the model has accounted for against it (disturbance.resolved, the rule
-    that accepts a candidate for it) no longer counts."""
+    """:func:`significant_residual`, or a persistent structure in the current residual or in the angle
+    innovation over steady motion of a recording scored by the observer (a closed loop: the loop hides an
+    effect in the angle, not in the current it needed nor while the plate slides; disturbance.py). ``res``: the
+    angle residuals of the model (``plant``, ``sensor``). ``z_ref``: the nominal model's deciding z
+    (disturbance.deciding_z); a structure that the model has accounted for against it (disturbance.resolved,
+    the rule that accepts a candidate for it) no longer counts."""
     if significant_residual(data, res):
         return True
-    z = D.current_z(D.persistent_mismatch(data, plant, sensor))
+    z = D.deciding_z(D.persistent_mismatch(data, plant, sensor))
     return z > D.Z_DETECT and (z_ref is None or not D.resolved(z_ref, z))

@@ -275,8 +275,8 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         res0 = angle_residuals_deg(simulate(*spec0.build(nominal.x), data), data)
         lap("calibrate")
 
-        def persistent(fr: F.FitResult) -> float:     # a closed loop's current residual (disturbance.py)
-            return D.current_z(D.persistent_mismatch(data, *fr.spec.build(fr.x)))
+        def persistent(fr: F.FitResult) -> float:     # a closed loop: current residual, steady motion (disturbance.py)
+            return D.deciding_z(D.persistent_mismatch(data, *fr.spec.build(fr.x)))
 
         z0 = persistent(nominal)
 
@@ -294,7 +294,8 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
                                   significant, opts.max_effects, bar, log, skipped, persistent=persistent)
             lap("select")
             from .refine import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
-            final, steps, shaped = refine(nominal0, final, steps, fit_data, significant, log=log)
+            final, steps, shaped = refine(nominal0, final, steps, fit_data, significant, log=log,
+                                           persistent=persistent)
             lap("refine")
             final = nominal if final is nominal0 else polish(final, data)
             lap("polish")
