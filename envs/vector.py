@@ -7,10 +7,14 @@
 It is the same MDP as N :class:`~etb_gym.envs.env.ETBEnv` in a ``SyncVectorEnv``, step for step and bit for
 bit (tests/test_envs_vector.py): sub-env k owns a generator seeded like ``SyncVectorEnv`` seeds it
 (``seed + k``), draws its episodes with the single env's :meth:`ETBEnv.draw_episode`, and reads its
-sensor from noise blocks drawn in the same order. The plants advance together through
-``Plant.step_batch``; reward, sensing, observation and info of all sub-envs are then one compiled loop
-(:func:`step_rewards`, :func:`observe_rows`) that calls the single env's kernels (``step_reward``,
-``sense``, ``delay_push``, ``observation.encode_into``) per sub-env. All it takes from the single env is its
+sensor from noise blocks drawn in the same order. A step is one compiled call,
+``vector_step`` (envs/vector_kernel.py), in parallel over the sub-envs: each thread steps its plants (the
+composition's stepper, as ``Plant.step_batch`` calls it) and then computes their reward, reading, observation
+and info with the single env's kernels (``step_reward``, ``sense``, ``delay_push``, ``observation.encode_into``),
+drawing a sub-env's next noise block itself when the current one is used up (envs/noise.py: numpy's PCG64 and
+ziggurat in compiled code, the same numbers; each sub-env's generator state travels between its
+``np.random.Generator``, which draws its episodes at resets, and the step). Python around it only checks the
+actions, resets the sub-envs that were truncated and builds the info dict. All it takes from the single env is its
 public :class:`~etb_gym.envs.kernel.EnvKernel` (``env.kernel``: stepper, constants, observation layout) and
 its episode draws (tests/test_envs_vector.py checks that this module reads no private attribute of it).
 Autoreset is Gymnasium's default ``NEXT_STEP`` mode: the step after a sub-env is truncated resets it
@@ -18,12 +22,11 @@ Autoreset is Gymnasium's default ``NEXT_STEP`` mode: the step after a sub-env is
 with ``_key`` masks, as ``SyncVectorEnv`` builds it. Rendering is not supported here (use
 ``vectorization_mode="sync"`` to render sub-envs).
 
-``num_threads`` (keyword) sets the threads of the parallel batch step. Default: 1 below 64 sub-envs
-(waking a thread pool costs more than stepping a few dozen plants), else numba's thread count. The pool
-sleeps while it waits (etb_gym.integrate.configure_thread_pool), so on a shared machine it costs no
-more CPU than one thread and still uses whatever the other core has left: measured on the loaded 2-core
-machine of docs/speed.md, N = 1024 stepped 690k plant-steps/s with 2 threads vs 455k with 1 (N = 256:
-470k vs 348k; N = 64: 233k vs 202k). Results do not depend on it.
+``num_threads`` (keyword) sets the threads of the step. Default: 1 below 64 sub-envs (waking a thread pool
+costs more than stepping a few dozen plants; one thread runs ``vector_step_serial``, no pool at all), else
+numba's thread count. The pool sleeps while it waits (etb_gym.threadpool), so on a shared machine it costs no
+more CPU than one thread and still uses whatever the other core has left (docs/speed.md). Results do not
+depend on it.
 """
 from __future__ import annotations
 
@@ -34,17 +37,18 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from etb_gym.components.sensor import delay_push, sense
 from etb_gym.jit import HAVE_NUMBA, kernel
 from etb_gym.plant import read_only
 from etb_gym.threadpool import ensure_thread_pool
 
 from .env import ETBEnv
-from .kernel import INFO_KEYS, NOISE_BLOCK, RAD2DEG, step_reward
-from .observation import encode_current_into, encode_into, encode_supply_into
+from .kernel import INFO_KEYS, NOISE_BLOCK
+from .noise import pcg_words, set_pcg_words
+from .vector_kernel import observe_rows, vector_step_for
 
-SERIAL_UP_TO = 4      # up to this many plants: the single env's compiled control step in a loop
 PARALLEL_FROM = 64    # below this many plants one thread is faster than waking numba's thread pool
+INFO_PAD = 8          # the info matrix's rows are N + 8 values apart: N * 8 bytes apart (N = 512, 1024, ...) they
+#                       would all fall in one cache set, and a step writes every key of a sub-env together
 
 
 # ---------------------------------------------------------------------------------------------- compiled loops
@@ -66,85 +70,6 @@ def clip_duties(actions, ignored, out):
     return bad
 
 
-@kernel
-def step_rewards(duty, last_duty, X, K, ref_table, max_steps, weights, reward, truncated):
-    """After the plants stepped: count the step (K), reward and truncation of every sub-env; ``last_duty``
-    becomes ``duty``. ``weights`` = (w_tracking / 90, w_effort, w_chattering / 4), as ETBEnv scales them."""
-    for b in range(K.shape[0]):
-        k = K[b] + 1
-        K[b] = k
-        r = ref_table[b, min(k, max_steps)]
-        reward[b] = step_reward(r - X[b, 0] * RAD2DEG, duty[b], last_duty[b], weights[0], weights[1], weights[2])
-        last_duty[b] = duty[b]
-        truncated[b] = k >= max_steps
-
-
-@kernel
-def observe_rows(rows, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps, delay_buf, delay_pos, noise,
-                 noise_pos, noise_std, sensor, observe_current, observe_supply, state_scale, clip, obs_low, obs_high,
-                 info_cols, obs, info):
-    """Sensing, observation and info of sub-envs ``rows``: the single env's ``_observe`` per row, written to
-    ``obs[j]`` and ``info[:, j]`` for ``b = rows[j]`` (the info keys' order: INFO_KEYS, torques, t_s). ``sensor`` = (gain, offset, resolution, current noise std,
-    current resolution, supply noise std, supply resolution); ``state_scale`` is empty unless the full state is observed; ``info_cols``: the AUX
-    column of each torque key (-1: no such component, 0). Returns how many of the rows used up their noise
-    block (the caller draws the next block before their next reading, as the single env does)."""
-    used_up = 0
-    n_obs = obs.shape[1]
-    n_x = state_scale.shape[0]
-    for j in range(rows.shape[0]):
-        b = rows[j]
-        phi_read, delay_pos[b] = delay_push(delay_buf[b], delay_pos[b], X[b, 0])
-        pos = min(noise_pos[b], NOISE_BLOCK - 1)    # past the end only in rows about to be reset (outputs replaced)
-        noise_pos[b] = pos + 1
-        if pos + 1 == NOISE_BLOCK:
-            used_up += 1
-        s_deg = sense(phi_read, sensor[0], sensor[1], noise_std[b] * noise[b, pos, 0], sensor[2]) * RAD2DEG
-        r = ref_table[b, min(K[b], max_steps)]
-        d = last_duty[b]
-        o = obs[j]
-        encode_into(o, s_deg, r, d)
-        if observe_current:
-            encode_current_into(o, sense(X[b, 2], 1.0, 0.0, sensor[3] * noise[b, pos, 1], sensor[4]))
-        if observe_supply:
-            encode_supply_into(o, 5 if observe_current else 4,
-                               sense(supply_V[b], 1.0, 0.0, sensor[5] * noise[b, pos, 2], sensor[6]))
-        for m in range(n_x):
-            o[n_obs - n_x + m] = X[b, m] * state_scale[m]
-        if clip:
-            for m in range(n_obs):
-                o[m] = max(min(o[m], obs_high[m]), obs_low[m])
-        info[1, j] = s_deg
-        info[6, j] = r
-    fill_info(rows, X, AUX, last_duty, supply_V, K, dt, info_cols, info)
-    return used_up
-
-
-@kernel
-def fill_info(rows, X, AUX, last_duty, supply_V, K, dt, info_cols, info):
-    """The rows of the info matrix that observe_rows leaves (all but the sensed angle and the reference), one
-    key at a time: the rows lie N * 8 bytes apart, so writing all keys of one sub-env would touch a cache
-    line per key in the same cache set (measured: 4x slower at N = 1024)."""
-    n = rows.shape[0]
-    for j in range(n):
-        info[0, j] = X[rows[j], 0] * RAD2DEG
-    for j in range(n):
-        info[2, j] = X[rows[j], 1] * RAD2DEG
-    for j in range(n):
-        info[3, j] = X[rows[j], 2]
-    for j in range(n):
-        info[4, j] = last_duty[rows[j]] * supply_V[rows[j]]
-    for j in range(n):
-        info[5, j] = last_duty[rows[j]]
-    for j in range(n):
-        info[7, j] = supply_V[rows[j]]
-    for c in range(info_cols.shape[0]):
-        col = info_cols[c]
-        for j in range(n):
-            info[8 + c, j] = AUX[rows[j], col] if col >= 0 else 0.0
-    for j in range(n):
-        info[info.shape[0] - 1, j] = K[rows[j]] * dt
-
-
 def _max_threads() -> int:
     if not HAVE_NUMBA:
         return 1
@@ -153,27 +78,16 @@ def _max_threads() -> int:
     return numba.config.NUMBA_NUM_THREADS
 
 
-class _Threads:
-    """Run numba parallel regions with ``n`` threads inside the block (restores the previous count)."""
+def _set_threads(n: int) -> int:
+    """Set the threads of numba's parallel regions to ``n`` (if they differ); returns the previous count."""
+    if not HAVE_NUMBA:
+        return n
+    import numba
 
-    def __init__(self, n):
-        self.n, self.prev = n, None
-
-    def __enter__(self):
-        if HAVE_NUMBA:
-            import numba
-
-            ensure_thread_pool()      # before numba's pool starts, or it spins (etb_gym/threadpool.py)
-            self.prev = numba.get_num_threads()
-            if self.prev != self.n:
-                numba.set_num_threads(self.n)
-        return self
-
-    def __exit__(self, *exc):
-        if self.prev is not None and self.prev != self.n:
-            import numba
-
-            numba.set_num_threads(self.prev)
+    prev = numba.get_num_threads()
+    if prev != n:
+        numba.set_num_threads(n)
+    return prev
 
 
 class ETBVectorEnv(VectorEnv):
@@ -212,26 +126,37 @@ class ETBVectorEnv(VectorEnv):
         self._P_read_only = read_only(self._P)  # rhs compiled for read-only P, as for the single env and the plant
         self._V = np.full(N, env.supply_V)
         self._K = np.zeros(N, np.int64)
-        self._t0 = np.zeros(N)
+        self._T0 = np.zeros(N)                  # scratch of the step: each plant's start time, stepper state
+        self._DX = np.empty((N, 3 * p.n_states))
+        self._OK = np.ones(N, bool)
         self._d = np.zeros(N)                   # this step's applied duty
         self._duty = np.zeros(N)                # the previous step's
         self._tab = np.zeros((N, env.max_steps + 1))
         self._noise = np.zeros((N, NOISE_BLOCK, kn.noise_cols))
         self._npos = np.zeros(N, np.int64)
         self._noise_std = np.zeros(N)
+        self._words = np.zeros((N, 4), np.uint64)        # each sub-env generator's PCG64 state (envs/noise.py)
         self._dbuf = np.zeros((N, kn.delay_length))     # the delay lines (delay_push)
         self._dpos = np.zeros(N, np.int64)
         self._autoreset = np.zeros(N, bool)
-        self._refill_pending = False
         self._rows = np.arange(N)
+        self._obs = np.zeros((N, kn.n_obs), np.float32)
         self._dx = np.empty(p.n_states)
         # constants of the compiled loops
         self._state_scale = kn.observed_state_scale
         torques = kn.info_torques
         self._info_cols = np.array([k for _, k in torques], np.int64)
-        self._info_keys = tuple((key, "_" + key) for key in INFO_KEYS + tuple(key for key, _ in torques) + ("t_s",))
+        self._info_keys = INFO_KEYS + tuple(key for key, _ in torques) + ("t_s",)
+        self._mask_keys = tuple("_" + key for key in self._info_keys)
         self._started = False
-        self._threads = _Threads(self.num_threads)
+        self._step_fn = vector_step_for(p, parallel=self.num_threads > 1)
+        # vector_step's arguments between the actions and the outputs: the same arrays at every step
+        self._step_args = (self._autoreset, self._X, self._P, self._V, self._K, self._AUX, self._T0, self._DX,
+                           self._OK, self._duty, kn.dt, kn.substeps, kn.switching, kn.pwm_frequency_hz, self._tab,
+                           kn.max_steps, kn.reward_weights, self._dbuf, self._dpos, self._noise, self._npos,
+                           self._noise_std, self._words, kn.sensor, kn.observe_current, kn.observe_supply,
+                           self._state_scale, kn.clip_obs, kn.obs_low, kn.obs_high, self._info_cols)
+        ensure_thread_pool()      # before numba's pool starts, or it spins (etb_gym/threadpool.py)
 
     # ------------------------------------------------------------------------------ per-row resets
     def _reset_rows(self, rows, seeds, options):
@@ -239,6 +164,8 @@ class ETBVectorEnv(VectorEnv):
         for i, s in zip(rows, seeds):
             if s is not None or self._rngs[i] is None:
                 self._rngs[i], _ = seeding.np_random(s)
+            else:   # the step drew this sub-env's noise blocks from its words since its last reset
+                set_pcg_words(self._rngs[i], self._words[i])
             rng = self._rngs[i]
             ep = env.draw_episode(rng, options)
             self._episodes[i] = ep
@@ -253,16 +180,10 @@ class ETBVectorEnv(VectorEnv):
             self._dbuf[i] = self._X[i, 0]
             self._dpos[i] = 0
             rng.standard_normal(out=self._noise[i])
+            pcg_words(rng, self._words[i])
             self._npos[i] = 0
             self._autoreset[i] = False
         return self._observe(np.asarray(rows, np.int64))
-
-    def _refill_noise(self):
-        """Draw the next noise block of every live sub-env that used up its block (lazily, as the single env)."""
-        for b in np.flatnonzero((self._npos == NOISE_BLOCK) & ~self._autoreset):
-            self._rngs[b].standard_normal(out=self._noise[b])
-            self._npos[b] = 0
-        self._refill_pending = False
 
     # ------------------------------------------------------------------------------ sensing and outputs
     def _observe(self, rows):
@@ -270,34 +191,17 @@ class ETBVectorEnv(VectorEnv):
         kn = self.kernel
         obs = np.empty((rows.size, kn.n_obs), np.float32)
         info = np.empty((len(self._info_keys), rows.size))
-        used_up = observe_rows(rows, self._X, self._AUX, self._duty, self._V, self._K, kn.dt, self._tab,
-                               kn.max_steps, self._dbuf, self._dpos, self._noise, self._npos, self._noise_std,
-                               kn.sensor, kn.observe_current, kn.observe_supply, self._state_scale,
-                               kn.clip_obs, kn.obs_low, kn.obs_high, self._info_cols, obs, info)
-        self._refill_pending |= used_up > 0
+        observe_rows(rows, self._X, self._AUX, self._duty, self._V, self._K, kn.dt, self._tab, kn.max_steps,
+                     self._dbuf, self._dpos, self._noise, self._npos, self._noise_std, self._words, kn.sensor,
+                     kn.observe_current, kn.observe_supply, self._state_scale, kn.clip_obs, kn.obs_low, kn.obs_high,
+                     self._info_cols, obs, info)
         return obs, info
 
     def _info_dict(self, info, mask):
         """SyncVectorEnv's info layout: each key's array (a row of the info matrix) and its ``_key`` mask."""
-        out = {}
-        for (key, mkey), values in zip(self._info_keys, info):
-            out[key] = values
-            out[mkey] = mask
+        out = dict(zip(self._info_keys, info))
+        out.update(dict.fromkeys(self._mask_keys, mask))
         return out
-
-    def _step_plants(self, d):
-        kn, N = self.kernel, self.num_envs
-        t0 = np.multiply(self._K, kn.dt, out=self._t0)
-        if N <= SERIAL_UP_TO:     # a parallel region costs more than a few plants
-            ok = np.empty(N, bool)
-            cs, X, V, P, A = kn.control_step, self._X, self._V, self._P, self._AUX
-            for i in range(N):
-                ok[i] = cs(X[i], d[i], V[i], P[i], t0[i], kn.dt, kn.substeps, kn.switching, kn.pwm_frequency_hz, A[i])
-            return ok
-        if self.num_threads == 1:
-            return self.plant.step_batch(self._X, d, self._V, self._P, t0, self._AUX, parallel=False)
-        with self._threads:
-            return self.plant.step_batch(self._X, d, self._V, self._P, t0, self._AUX)
 
     # ------------------------------------------------------------------------------ VectorEnv API
     def reset(self, *, seed=None, options=None):
@@ -324,8 +228,8 @@ class ETBVectorEnv(VectorEnv):
         obs_r, info_r = self._reset_rows(rows, [seeds[i] for i in rows], opts or None)
         self._started = True
         if mask is None:
-            self._obs = obs_r
-            return obs_r.copy(), self._info_dict(info_r, np.ones(N, bool))
+            self._obs[:] = obs_r
+            return obs_r, self._info_dict(info_r, np.ones(N, bool))
         self._obs[rows] = obs_r
         info = np.zeros((len(self._info_keys), N))
         info[:, rows] = info_r
@@ -347,28 +251,31 @@ class ETBVectorEnv(VectorEnv):
         bad = clip_duties(a, self._autoreset, d)
         if bad >= 0:
             raise ValueError(f"actions[{bad}] = {float(a[bad])!r}: expected a finite duty cycle in [-1, 1]")
-        ok = self._step_plants(d)
-        live = ~self._autoreset
-        if not ok.all() and not ok[live].all():
-            k = int(np.argmax(~ok & live))
-            raise FloatingPointError(f"sub-env {k}: "
-                                     + self.plant.divergence_message(self._X[k], (self._K[k] + 1) * env.dt))
+        ignored = self._autoreset
         reward = np.empty(N)
         trunc = np.empty(N, bool)
-        step_rewards(d, self._duty, self._X, self._K, self._tab, env.max_steps, self.kernel.reward_weights, reward,
-                     trunc)
-        if self._refill_pending:
-            self._refill_noise()
-        obs, info = self._observe(self._rows)
-        if not live.all():
-            resets = np.flatnonzero(~live)
+        obs = self._obs
+        info = np.empty((len(self._info_keys), N + INFO_PAD))
+        prev = _set_threads(self.num_threads) if self.num_threads > 1 else 1
+        try:
+            self._step_fn(d, *self._step_args, reward, trunc, obs, info)
+        finally:
+            if prev != self.num_threads:
+                _set_threads(prev)
+        info = info[:, :N]
+        ok = self._OK
+        if not ok.all() and not (ok | ignored).all():
+            k = int(np.argmax(~(ok | ignored)))
+            raise FloatingPointError(f"sub-env {k}: "
+                                     + self.plant.divergence_message(self._X[k], (self._K[k] + 1) * env.dt))
+        if ignored.any():
+            resets = np.flatnonzero(ignored)
             obs_r, info_r = self._reset_rows(resets, [None] * resets.size, None)
             obs[resets] = obs_r
             info[:, resets] = info_r
             reward[resets] = 0.0
             trunc[resets] = False
-        self._autoreset = trunc.copy()
-        self._obs = obs
+        np.copyto(ignored, trunc)
         return obs.copy(), reward, np.zeros(N, bool), trunc, self._info_dict(info, np.ones(N, bool))
 
     @property

@@ -25,7 +25,8 @@ from the seeded action space before timing; episodes are reset when they end, in
     equal accuracy the fewest substeps at which the stepper's angle error on that excitation is within
                    0.044 deg RMS of solve_ivp (the stepper before issue 12 at its default 20 substeps):
                    ``substeps_for_0p044_deg``, and make_vec at the largest N with those substeps:
-                   ``vector_steps_per_s_at_equal_accuracy`` (null with --no-reference)
+                   ``vector_steps_per_s_at_equal_accuracy`` (null with --no-reference), its CPU per plant-step
+                   and the rate that CPU allows on all cores (``vector_steps_per_s_bound_at_equal_accuracy``)
     compare ID     any other gymnasium id given with --compare, as a further yardstick
 
 Every case runs ``--repeats`` times, the cases interleaved round-robin so that a change of machine load
@@ -317,6 +318,10 @@ def results(args, cases, med, cpu_us, notes, exc, eq, load_start) -> dict:
         "substeps_for_0p044_deg": args.equal_accuracy_substeps,
         "equal_accuracy": eq,
         "vector_steps_per_s_at_equal_accuracy": med.get("vector_eqacc"),
+        "vector_cpu_us_per_plant_step_at_equal_accuracy": cpu_us.get("vector_eqacc"),
+        # what that CPU per plant-step allows with every core of this machine busy (cores / CPU per plant-step)
+        "vector_steps_per_s_bound_at_equal_accuracy": None if cpu_us.get("vector_eqacc") is None
+        else (info.get("cpus") or 1) * 1e6 / cpu_us["vector_eqacc"],
         "compare_steps_per_s": {c.key.split(":", 1)[1]: med[c.key] for c in cases if c.key.startswith("compare:")},
         "plant_step_us": 1e6 / med["plant_step"],
         "kernel_1024_steps_per_s": med["kernel_1024"],

@@ -116,6 +116,10 @@ def compare_with_baseline(args, eq):
     res["substeps_for_0p044_deg"] = args.equal_accuracy_substeps
     res["equal_accuracy"] = eq
     res["vector_steps_per_s_at_equal_accuracy"] = eq_after
+    cpu_eq = med["after"].get("cpu_us_per_step.vector_eqacc")
+    res["vector_cpu_us_per_plant_step_at_equal_accuracy"] = cpu_eq
+    res["vector_steps_per_s_bound_at_equal_accuracy"] = None if cpu_eq is None else \
+        (res["machine"].get("cpus") or 1) * 1e6 / cpu_eq
     res["ratio_vector_at_equal_accuracy_vs_baseline"] = None if eq_after is None or eq_before is None \
         else eq_after / eq_before
     res["ratio_vector_at_equal_accuracy_vs_baseline_at_its_substeps"] = \

@@ -5,11 +5,12 @@ import pytest
 
 import etb_gym  # noqa: F401
 from etb_gym.envs.vector import ETBVectorEnv
+from etb_gym.jit import HAVE_NUMBA
 
 
-def _compare(kw, n_envs=3, n_steps=None, seed=11, options=None):
-    nat = gym.make_vec("ETB-3B-v0", num_envs=n_envs, **kw)
-    syn = gym.make_vec("ETB-3B-v0", num_envs=n_envs, vectorization_mode="sync", **kw)
+def _compare(kw, n_envs=3, n_steps=None, seed=11, options=None, env_id="ETB-3B-v0", num_threads=None):
+    nat = gym.make_vec(env_id, num_envs=n_envs, num_threads=num_threads, **kw)
+    syn = gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="sync", **kw)
     assert isinstance(nat.unwrapped, ETBVectorEnv)
     assert nat.single_observation_space == syn.single_observation_space
     assert nat.action_space == syn.action_space
@@ -93,3 +94,35 @@ def test_vector_env_reads_no_private_attribute_of_the_single_env():
     # the check itself sees such a read
     assert private_reads("def f(self):\n    return self.env._P_nominal + self._ok\n") == \
         ["line 2: self.env._P_nominal"]
+
+
+@pytest.mark.skipif(not HAVE_NUMBA, reason="the compiled noise stream (without numba fill_normals is numpy itself)")
+def test_compiled_noise_is_numpys_standard_normal():
+    """envs/noise.py: numpy's PCG64 and ziggurat standard_normal ported to compiled code give numpy's numbers bit for
+    bit (10^5 per seed, the ziggurat's rejection and tail branches included) and leave numpy's generator state."""
+    from numba import njit
+
+    from etb_gym.envs.noise import fill_normals, pcg_words, set_pcg_words
+
+    fill = njit(lambda out, words: fill_normals(out, words))
+    for seed in (0, 1, 2):
+        rng = np.random.default_rng(seed)
+        words = pcg_words(rng, np.zeros(4, np.uint64))
+        out = np.empty((400, 250))
+        fill(out, words)
+        assert np.array_equal(out, rng.standard_normal((400, 250)))
+        assert np.array_equal(words, pcg_words(rng, np.zeros(4, np.uint64)))
+        assert np.abs(out).max() > 3.6541528853610088      # the tail branch (x beyond the ziggurat's r) ran
+        plain = np.empty((128, 3))
+        fill_normals(plain, words)          # from Python: numpy itself
+        assert np.array_equal(plain, rng.standard_normal((128, 3)))
+        other = np.random.default_rng(99)
+        set_pcg_words(other, words)
+        assert np.array_equal(other.standard_normal(5), rng.standard_normal(5))
+
+
+def test_parallel_vector_step_equals_sync():
+    """The parallel vector step (num_threads=2, lockstep groups of two plants and an odd one) equals N single envs,
+    noise refills (every 128 steps) and autoresets included."""
+    assert _compare(dict(episode_s=0.15, observe_current=True), n_envs=5, n_steps=300, seed=21, env_id="ETB-1A-v0",
+                    num_threads=2)

@@ -22,7 +22,8 @@ QUICK = ["--repeats", "1", "--seconds", "0.01", "--num-envs", "1", "3", "--no-ge
          "--excitation-s", "0.05"]
 REQUIRED = ("etb_steps_per_s", "etb_switching_realtime_factor", "vector_steps_per_s", "pendulum_steps_per_s",
             "gem_steps_per_s", "reset_us", "ratio_etb_vs_pendulum", "ratio_etb_vs_gem", "excitation_fast_s",
-            "excitation_solve_ivp_s", "fast_path", "substeps_for_0p044_deg", "vector_steps_per_s_at_equal_accuracy")
+            "excitation_solve_ivp_s", "fast_path", "substeps_for_0p044_deg", "vector_steps_per_s_at_equal_accuracy",
+            "vector_cpu_us_per_plant_step_at_equal_accuracy", "vector_steps_per_s_bound_at_equal_accuracy")
 
 
 def test_quick_run_prints_table_and_json_last(capsys, tmp_path):
@@ -36,6 +37,8 @@ def test_quick_run_prints_table_and_json_last(capsys, tmp_path):
     assert all(v > 0 for v in last["vector_steps_per_s"].values())
     assert last["etb_steps_per_s"] > 0 and last["reset_us"] > 0
     assert last["substeps_for_0p044_deg"] == 5 and last["vector_steps_per_s_at_equal_accuracy"] > 0
+    assert math.isclose(last["vector_steps_per_s_bound_at_equal_accuracy"],
+                        last["machine"]["cpus"] * 1e6 / last["vector_cpu_us_per_plant_step_at_equal_accuracy"])
     assert last["compare_steps_per_s"]["CartPole-v1"] > 0
     assert math.isclose(last["etb_switching_realtime_factor"], last["etb_switching_steps_per_s"] * 1e-3)
     assert last["fast_path"] is HAVE_NUMBA
