@@ -171,15 +171,15 @@ class IvpPlant:
         return np.asarray(X)
 
 
-def ivp_recording(truth, c: dict, rng: np.random.Generator, name: str):
-    """An open-loop recording of ``truth`` by IvpPlant: the same duty, sensor (noise, 12 bits) and current
-    sensor as ``synthetic.make_recording``."""
+def ivp_recording(truth, c: dict, rng: np.random.Generator, name: str, file_plant=None):
+    """An open-loop recording of ``truth`` by IvpPlant: the same duty (scaled to ``file_plant``, the plant the
+    tool is given, as the proof does), sensor (noise, 12 bits) and current sensor as ``synthetic.make_recording``."""
     from etb_gym.diagnose.synthetic import QUIET_S, open_loop_duty
     from etb_gym.recordings import Recording
     dt = truth.control_period_s
     nq = int(round(QUIET_S / dt))
     n = nq + int(round((c["duration_s"] - QUIET_S) / dt))
-    duty = np.concatenate([np.zeros(nq), open_loop_duty(c["duration_s"] - QUIET_S, rng, dt)])[:n]
+    duty = np.concatenate([np.zeros(nq), open_loop_duty(c["duration_s"] - QUIET_S, rng, dt, plant=file_plant)])[:n]
     X = IvpPlant(truth).simulate(duty[:-1])
     e = rng.normal(0.0, 1.0, n)
     if c["colour"] > 0:
@@ -196,7 +196,7 @@ def recording(truth, file_plant, c: dict, name: str):
     from etb_gym.diagnose.synthetic import make_recording
     rng = np.random.default_rng(c["seed"] + 1)
     if c["source"] == "ivp" and not c["closed"]:
-        return ivp_recording(truth, c, rng, name)
+        return ivp_recording(truth, c, rng, name, file_plant)
     ctrl = None
     if c["closed"]:
         from etb_gym.diagnose.proof import _controller
@@ -206,7 +206,7 @@ def recording(truth, file_plant, c: dict, name: str):
             ctrl = None
     return make_recording(truth, rng, duration_s=c["duration_s"], closed=c["closed"], noise_deg=c["noise_deg"],
                           resolution_deg=c["bits_span_deg"] / 4096, colour=c["colour"],
-                          with_current=c["current"], name=name, controller=ctrl)
+                          with_current=c["current"], name=name, controller=ctrl, nameplate=file_plant)
 
 
 NAME_SETS = ({"t": "time_s", "v": "voltage_V", "d": "duty", "s": "supply_V", "a": "angle_deg", "i": "current_A"},

@@ -110,17 +110,20 @@ def run(case: str, args, work: Path) -> dict:
 def _recordings(fam, seed, truth, sensor_kw, rng, args, work, nameplate):
     """The proof's recording and held-out recording (record_and_diagnose's draws, without the diagnosis)."""
     from etb_gym.diagnose.synthetic import make_recording, nameplate_file_plant
+    from etb_gym.plant import make_plant
     from etb_gym.plantfile import load_plant, save_plant
     closed = seed % 2 == 1
     noise = [0.01, 0.03][(seed // 2) % 2]
     colour = 0.5 if (seed // 4) % 2 else 0.0
     kw = dict(noise_deg=noise, colour=colour, **sensor_kw)
     rec_seed = int(rng.integers(1 << 30))
-    ctrl = None
+    ctrl, known = None, make_plant("3B")
     if nameplate == "random":
         pf = work / f"h_{fam}_{seed}_plant.toml"
         save_plant(nameplate_file_plant(truth, rng), pf)
-        ctrl = PR._controller(load_plant(pf))
+        known = load_plant(pf)
+        ctrl = PR._controller(known)
+    kw["nameplate"] = known                     # as the proof: the excitation is scaled to the plant the tool is given
     rec = make_recording(truth, np.random.default_rng(rec_seed), duration_s=args.duration, closed=closed,
                          name=f"{fam}_{seed}.csv", controller=ctrl, **kw)
     held = make_recording(truth, np.random.default_rng(rec_seed + 1), duration_s=args.duration, closed=not closed,
