@@ -177,7 +177,7 @@ def serial_source() -> str:
 def vector_step_for(plant, parallel: bool):
     """The compiled (or, on the plain path, plain) ``vector_step`` of ``plant``'s composition, in parallel over the
     sub-envs or on the calling thread (each built once, compiled on its first call)."""
-    fn = py_func(plant.engine.fns.batch_step)
+    fn = py_func(plant.stepper("fast").batch_step)
     key = (id(fn.__globals__), bool(parallel))
     if key not in _built:
         _built[key] = _build(fn.__globals__, fn.__module__, bool(plant.fast), bool(parallel))
