@@ -19,7 +19,6 @@ compiled in memory; on the plain path it is the same source run by CPython.
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import inspect
 import sys
 
@@ -28,7 +27,7 @@ from etb_gym.components import sensor
 from etb_gym.components.sensor import delay_push, sense
 from etb_gym.integrate import GROUP
 from etb_gym.jit import HAVE_NUMBA, kernel, py_func
-from etb_gym.kernel_cache import borrow, cache_dir, identity
+from etb_gym.kernel_cache import borrow, identity
 
 from . import kernel as kernel_mod
 from . import noise, observation
@@ -208,26 +207,11 @@ def _load_cached(stepper_module: str):
     """Write the generated module into the kernel cache (once per stepper module) and import it."""
     import numba
 
-    from etb_gym.io import write_atomic
-    from etb_gym.kernel_cache import compile_under_lock
+    from etb_gym.kernel_cache import import_cached_source
 
     src = (_HEADER.format(stepper=stepper_module) + "\n@njit(parallel=True, cache=True)" + TEMPLATE
            + "\n@njit(cache=True)" + serial_source())
     # numba's cache does not see a change in a callee's module: the digest covers their sources
     deps = "".join(inspect.getsource(m) for m in (sys.modules[__name__], kernel_mod, noise, observation, sensor))
     digest = hashlib.sha256((src + deps + numba.__version__).encode()).hexdigest()[:20]
-    d = cache_dir()
-    d.mkdir(parents=True, exist_ok=True)
-    path = d / f"etb_vector_{digest}.py"
-    if not path.exists():
-        write_atomic(path, src, fsync=False)
-    name = f"etb_gym_kernels.v_{digest}"
-    mod = sys.modules.get(name)
-    if mod is None:
-        spec = importlib.util.spec_from_file_location(name, path)
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[name] = mod
-        spec.loader.exec_module(mod)
-        compile_under_lock(mod.vector_step, d / f"etb_vector_{digest}.lock")
-        compile_under_lock(mod.vector_step_serial, d / f"etb_vector_{digest}.lock")
-    return mod
+    return import_cached_source(src, "etb_vector", "v", digest, ("vector_step", "vector_step_serial"))

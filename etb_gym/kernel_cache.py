@@ -137,23 +137,30 @@ def load_cached_module(source: str, bound: dict, components, jit_options: dict, 
 
     digest = hashlib.sha256((src + kernel_digest(components) + numba.__version__ + revision)
                             .encode()).hexdigest()[:20]
+    return vars(import_cached_source(src, "etb_kernel", "k", digest, jit_options))
+
+
+def import_cached_source(src: str, file_prefix: str, module_prefix: str, digest: str, entry_points):
+    """Write ``src`` to ``cache_dir()/<file_prefix>_<digest>.py`` (once), import it as
+    ``etb_gym_kernels.<module_prefix>_<digest>`` (once per process) and compile its ``entry_points`` under the
+    digest's file lock (one process compiles, the others load numba's cache)."""
     d = cache_dir()
     d.mkdir(parents=True, exist_ok=True)
-    path = d / f"etb_kernel_{digest}.py"
+    path = d / f"{file_prefix}_{digest}.py"
     if not path.exists():
         from .io import write_atomic
         write_atomic(path, src, fsync=False)
-    modname = f"etb_gym_kernels.k_{digest}"
+    modname = f"etb_gym_kernels.{module_prefix}_{digest}"
     if modname in sys.modules:
-        return vars(sys.modules[modname])
+        return sys.modules[modname]
     spec = importlib.util.spec_from_file_location(modname, path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[modname] = mod
     spec.loader.exec_module(mod)
-    lock = d / f"etb_kernel_{digest}.lock"
-    for name in jit_options:
+    lock = d / f"{file_prefix}_{digest}.lock"
+    for name in entry_points:
         compile_under_lock(getattr(mod, name), lock)
-    return vars(mod)
+    return mod
 
 
 LOCK_WAIT_S = 1800.0   # then compile anyway: a process that holds the lock this long is stuck, not compiling
