@@ -56,7 +56,7 @@ import math
 
 from .base import BaseController, VelocityEstimator, check_gain, register_controller
 from .model import resolve_model
-from .predictive import StopPredictor
+from .predictive import StopPredictor, kalman_gains
 from .selftest import BreakawaySelfTest
 
 
@@ -235,6 +235,10 @@ class CascadeController(BaseController):
     def reset_outer(self) -> None:
         pass
 
+    def control_angle(self, y: float, meas, V: float) -> float:
+        """The angle the laws act on (rad): the sensed one (subclasses may filter it)."""
+        return y
+
     def outer(self, e: float, y: float, v: float, r: float, v_r: float, a_r: float) -> float:  # pragma: no cover
         raise NotImplementedError
 
@@ -268,6 +272,7 @@ class CascadeController(BaseController):
         m = self.model
         k = m.torque_constant_Nm_per_A
         V = self.supply(meas)
+        y = self.control_angle(y, meas, V)
         v = self.estimator.update(y)
         a_hat = (v - self.v_prev) / self.dt
         self.v_prev = v
@@ -423,8 +428,13 @@ class PTOSController(CascadeController):
                  observer_angle_gain: float = 0.5, observer_speed_gain: float = 0.25,
                  observer_tracking_speed_gain: float = 0.55,
                  observer_noise_schedule: bool = True, follow_current_floor: float = 0.8,
-                 follow_headroom: float = 0.2, **kw):
+                 follow_headroom: float = 0.2, noisy_sensor_filter: bool = True,
+                 observer_torque_noise_Nm: float = 3.2e-4, **kw):
         own = type(self).__name__
+        if not isinstance(noisy_sensor_filter, bool):
+            raise ValueError(f"{own}: noisy_sensor_filter = {noisy_sensor_filter!r} is invalid: expected True or False")
+        self.noisy_filter = noisy_sensor_filter
+        self.torque_noise = check_gain(own, "observer_torque_noise_Nm", observer_torque_noise_Nm, positive=True)
         self.observer_angle_gain = check_gain(own, "observer_angle_gain", observer_angle_gain, non_negative=True,
                                               upper=1.0001)
         self.observer_speed_gain = check_gain(own, "observer_speed_gain", observer_speed_gain, non_negative=True,
@@ -497,6 +507,46 @@ class PTOSController(CascadeController):
         self.dr_prev = dr
         return dr / self.dt if steady else 0.0
 
+    def noise_ratio(self) -> float:
+        """q = min(1, reference innovation RMS / the resting innovation's RMS measured so far)."""
+        return min(1.0, self.innovation_ref / math.sqrt(max(self.innovation_ms, 1e-30))) if self.speed_schedule else 1.0
+
+    def observe(self, y: float, meas) -> None:
+        """One period of the predictor's observer, at the self-tuned levels."""
+        st, p = self.tuning, self.predictor
+        p.update_levels(st.resistance_ohm, st.friction_level, st.spring_level)
+        self.v_pred = p.speed                       # the speed the innovation's period started from
+        # the observer's speed gain on the angle innovation, scheduled on the sensor noise the controller measured
+        # at rest (the resting innovation's mean square, e.g. during the key-on hold): full up to the reference
+        # innovation RMS, falling as 1/RMS beyond (each period's speed correction is gain x innovation / T: on a
+        # noisy sensor the full gain turns the noise into speed errors the landing law brakes and drives on)
+        q = self.noise_ratio()
+        self.speed_gain_now = self.observer_speed_gain * q
+        if self.r_rate != 0.0:
+            self.speed_gain_now = max(self.speed_gain_now, self.tracking_speed_gain * q * q)
+        ga, gt = self.observer_angle_gain, 0.0
+        if q < 1.0 and self.noisy_filter:
+            ga, self.speed_gain_now, gt = self.noisy_gains()
+        p.observe(y, meas.current_A, meas.last_duty, self.V_now, ga, self.speed_gain_now, gt)
+        self.observed_periods += 1
+        self.observed_now = True
+
+    def noisy_gains(self) -> tuple:
+        """Steady-state Kalman gains (angle, speed, load torque) for the sensor noise measured at rest."""
+        var = self.innovation_ms * (2.0 - self.observer_angle_gain) / 2.0
+        var = math.exp(round(math.log(max(var, 1e-30)) * 20.0) / 20.0)      # 5 % steps: cached solutions
+        return kalman_gains(self.dt, self.model.inertia_kg_m2, var, self.torque_noise ** 2)
+
+    def control_angle(self, y: float, meas, V: float) -> float:
+        self.observed_now = False
+        self.y_control = y
+        if not self.noisy_filter or self.predictor is None or meas.current_A is None or self.noise_ratio() >= 1.0:
+            return y
+        self.V_now = V
+        self.observe(y, meas)
+        self.y_control = float(self.predictor.angle)
+        return self.y_control
+
     def compute(self, y: float, r_target: float, meas) -> float:
         self.r_rate = self.ff * self.reference_rate(r_target)
         r_seen = r_target
@@ -505,23 +555,15 @@ class PTOSController(CascadeController):
         # one period behind: 0.14 deg at 140 deg/s)
         r_target = r_seen + self.preview * self.r_rate * self.dt
         duty = super().compute(y, r_target, meas)
-        e = r_target - y
         if self.predictor is None or meas.current_A is None:
             return duty
+        if not self.observed_now:
+            self.observe(y, meas)
+        y = self.y_control
+        e = r_target - y
         m, st = self.model, self.tuning
         p = self.predictor
-        p.update_levels(st.resistance_ohm, st.friction_level, st.spring_level)
-        v_pred = p.speed                            # the speed the innovation's period started from
-        # the observer's speed gain on the angle innovation, scheduled on the sensor noise the controller measured
-        # at rest (the resting innovation's mean square, e.g. during the key-on hold): full up to the reference
-        # innovation RMS, falling as 1/RMS beyond (each period's speed correction is gain x innovation / T: on a
-        # noisy sensor the full gain turns the noise into speed errors the landing law brakes and drives on)
-        q = min(1.0, self.innovation_ref / math.sqrt(max(self.innovation_ms, 1e-30))) if self.speed_schedule else 1.0
-        self.speed_gain_now = self.observer_speed_gain * q
-        if self.r_rate != 0.0:
-            self.speed_gain_now = max(self.speed_gain_now, self.tracking_speed_gain * q * q)
-        p.observe(y, meas.current_A, meas.last_duty, self.V_now, self.observer_angle_gain, self.speed_gain_now)
-        self.observed_periods += 1
+        v_pred = self.v_pred
         d_test = None
         if self.selftest is not None and self.selftest.phase != self.selftest.DONE:
             d_test = self.selftest.update(y, r_seen, meas.current_A, meas.last_duty, self.V_now, st.resistance_ohm,
