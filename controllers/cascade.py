@@ -431,6 +431,7 @@ class PTOSController(CascadeController):
                  follow_headroom: float = 0.2, noisy_sensor_filter: bool = True,
                  observer_torque_noise_Nm: float = 3.2e-4, **kw):
         own = type(self).__name__
+        self.noise_settle = 0.02
         if not isinstance(noisy_sensor_filter, bool):
             raise ValueError(f"{own}: noisy_sensor_filter = {noisy_sensor_filter!r} is invalid: expected True or False")
         self.noisy_filter = noisy_sensor_filter
@@ -490,6 +491,10 @@ class PTOSController(CascadeController):
         self.landed_at = None
         self.innovation_ms = getattr(self, "innovation_ref", 0.0) ** 2
         self.observed_periods = 0
+        self.noise_var = 0.0
+        self._y3 = [None, None, None]
+        self._r_noise = None
+        self._still = 0
         self.r_prev = None
         self.dr_prev = 0.0
         self.r_rate = 0.0
@@ -525,22 +530,43 @@ class PTOSController(CascadeController):
         if self.r_rate != 0.0:
             self.speed_gain_now = max(self.speed_gain_now, self.tracking_speed_gain * q * q)
         ga, gt = self.observer_angle_gain, 0.0
-        if q < 1.0 and self.noisy_filter:
+        if self.noisy_filter and self.noisy:
             ga, self.speed_gain_now, gt = self.noisy_gains()
         p.observe(y, meas.current_A, meas.last_duty, self.V_now, ga, self.speed_gain_now, gt)
         self.observed_periods += 1
         self.observed_now = True
 
     def noisy_gains(self) -> tuple:
-        """Steady-state Kalman gains (angle, speed, load torque) for the sensor noise measured at rest."""
-        var = self.innovation_ms * (2.0 - self.observer_angle_gain) / 2.0
-        var = math.exp(round(math.log(max(var, 1e-30)) * 20.0) / 20.0)      # 5 % steps: cached solutions
+        """Steady-state Kalman gains (angle, speed, load torque) for the sensor noise variance measured at rest
+        (:meth:`measure_noise`), rounded to 5 % steps so the Riccati solutions are cached."""
+        var = math.exp(round(math.log(max(self.noise_var, 1e-30)) * 20.0) / 20.0)
         return kalman_gains(self.dt, self.model.inertia_kg_m2, var, self.torque_noise ** 2)
+
+    def measure_noise(self, y: float, r: float) -> None:
+        """The angle sensor's noise variance, from the second difference of the sensed angle while the reference
+        stands still and the plate has rested for 20 ms (white noise of variance s^2 gives 6 s^2; a resting or creeping plate's
+        own motion hardly any, unlike the innovation, which a wrong load model also fills), mean over 50 ms."""
+        ys = self._y3
+        ys[0], ys[1], ys[2] = ys[1], ys[2], y
+        still = r == self._r_noise and ys[0] is not None and abs(self.predictor.speed) < self.rest_speed
+        self._r_noise = r
+        self._still = self._still + 1 if still else 0
+        if self._still * self.dt >= self.noise_settle:
+            d2 = ys[2] - 2.0 * ys[1] + ys[0]
+            self.noise_var += self._g_noise * (d2 * d2 / 6.0 - self.noise_var)
+
+    @property
+    def noisy(self) -> bool:
+        """The sensor is noisier than ``innovation_noise_deg`` (RMS, measured at rest)."""
+        return self.noise_var > self.innovation_ref ** 2
 
     def control_angle(self, y: float, meas, V: float) -> float:
         self.observed_now = False
         self.y_control = y
-        if not self.noisy_filter or self.predictor is None or meas.current_A is None or self.noise_ratio() >= 1.0:
+        if not self.noisy_filter or self.predictor is None or meas.current_A is None:
+            return y
+        self.measure_noise(y, self.r_seen)
+        if not self.noisy:
             return y
         self.V_now = V
         self.observe(y, meas)
@@ -549,7 +575,7 @@ class PTOSController(CascadeController):
 
     def compute(self, y: float, r_target: float, meas) -> float:
         self.r_rate = self.ff * self.reference_rate(r_target)
-        r_seen = r_target
+        r_seen = self.r_seen = r_target
         # the duty acts over the coming period and the plate is judged against the reference at its end: a
         # reference moving at a steady rate is followed where it will be then (without this, a ramp is tracked
         # one period behind: 0.14 deg at 140 deg/s)
