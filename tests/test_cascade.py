@@ -401,7 +401,7 @@ def test_ptos_observer_speed_gain_follows_the_measured_sensor_noise():
     checked."""
     gains = {}
     for variant in ("nominal", "sensor_noise_high"):
-        c = make_controller("ptos")
+        c = make_controller("ptos", noisy_sensor_filter=False)     # (on, the noisy sensor gets a Kalman observer)
         _hold(c, 40.0, variant, n=200)
         gains[variant] = c.speed_gain_now / c.observer_speed_gain
     assert gains["nominal"] == 1.0 and 0.2 < gains["sensor_noise_high"] < 0.6, gains
@@ -418,7 +418,7 @@ def test_ptos_observer_tracking_speed_gain_only_while_the_reference_moves():
     from etb_gym.bench_scenarios import VARIANTS
 
     for variant in ("nominal", "sensor_noise_high"):
-        c = make_controller("ptos")
+        c = make_controller("ptos", noisy_sensor_filter=False)
         env = gym.make("ETB-3B-v0", observe_current=True, observe_supply=True, episode_s=0.26,
                        reference={"name": "ramp", "start_deg": 40.0, "end_deg": 45.0, "at_s": 0.2, "duration_s": 0.05},
                        **VARIANTS[variant].env_kwargs("ETB-3B-v0"))
@@ -439,3 +439,46 @@ def test_ptos_observer_tracking_speed_gain_only_while_the_reference_moves():
             assert 0.2 < q < 0.6 and moving[0] < 0.6 * c.observer_speed_gain, (q, moving)
     with pytest.raises(ValueError, match="observer_tracking_speed_gain"):
         make_controller("ptos", observer_tracking_speed_gain=-0.1)
+
+
+def test_kalman_gains_fall_with_the_sensor_noise_and_rise_with_the_process_noise():
+    from etb_gym.controllers.predictive import kalman_gains
+
+    quiet = kalman_gains(1e-3, 3e-5, math.radians(0.02) ** 2, 2.5e-4 ** 2)
+    noisy = kalman_gains(1e-3, 3e-5, math.radians(0.05) ** 2, 2.5e-4 ** 2)
+    lively = kalman_gains(1e-3, 3e-5, math.radians(0.05) ** 2, 1e-3 ** 2)
+    assert all(0 < n < q < 1 for n, q in zip(noisy, quiet)), (noisy, quiet)
+    assert all(n < v for n, v in zip(noisy, lively)), (noisy, lively)
+
+
+def test_ptos_noisy_sensor_gets_the_kalman_observer_and_acts_on_its_estimate():
+    """The noise read from the sensed angle's second difference at rest: ~0.05 deg on the 0.05 deg sensor (the
+    Kalman observer on angle, speed and load torque takes over, and the laws act on its angle, closer to the
+    true angle than the sensed one), ~0.01 deg on the nominal sensor (below 0.02 deg: the scheduled observer,
+    the sensed angle). The options are checked."""
+    from etb_gym.bench_scenarios import VARIANTS
+
+    for variant in ("nominal", "sensor_noise_high"):
+        c = make_controller("ptos")
+        env = gym.make("ETB-3B-v0", observe_current=True, observe_supply=True, episode_s=0.2,
+                       reference={"name": "constant", "value_deg": 40.0}, **VARIANTS[variant].env_kwargs("ETB-3B-v0"))
+        obs, info = env.reset(seed=0, options={"angle_deg": 40.0})
+        c.reset(0)
+        err_est, err_sensed = [], []
+        for k in range(200):
+            true_deg = info["angle_deg"]
+            d = c.act(obs)
+            if k >= 100:
+                err_est.append(math.degrees(c.y_control) - true_deg)
+                err_sensed.append(math.degrees(c.measure(obs)[0]) - true_deg)
+            obs, _, _, _, info = env.step(np.array([d], np.float32))
+        sigma = math.degrees(math.sqrt(c.noise_var))
+        rms_est, rms_sensed = (float(np.sqrt(np.mean(np.square(e)))) for e in (err_est, err_sensed))
+        if variant == "nominal":
+            assert sigma < 0.017 and not c.noisy and rms_est == rms_sensed, (sigma, rms_est)
+        else:
+            assert 0.03 < sigma < 0.07 and c.noisy and rms_est < 0.7 * rms_sensed, (sigma, rms_est, rms_sensed)
+    with pytest.raises(ValueError, match="noisy_sensor_filter"):
+        make_controller("ptos", noisy_sensor_filter="yes")
+    with pytest.raises(ValueError, match="observer_torque_noise_Nm"):
+        make_controller("ptos", observer_torque_noise_Nm=0.0)
