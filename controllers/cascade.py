@@ -429,7 +429,7 @@ class PTOSController(CascadeController):
                  observer_tracking_speed_gain: float = 0.55,
                  observer_noise_schedule: bool = True, follow_current_floor: float = 0.8,
                  follow_headroom: float = 0.5, noisy_sensor_filter: bool = True,
-                 observer_torque_noise_Nm: float = 2.5e-4, **kw):
+                 observer_torque_noise_Nm: float = 3.2e-4, **kw):
         own = type(self).__name__
         self.noise_settle = 0.02
         if not isinstance(noisy_sensor_filter, bool):

@@ -444,8 +444,8 @@ def test_ptos_observer_tracking_speed_gain_only_while_the_reference_moves():
 def test_kalman_gains_fall_with_the_sensor_noise_and_rise_with_the_process_noise():
     from etb_gym.controllers.predictive import kalman_gains
 
-    quiet = kalman_gains(1e-3, 3e-5, math.radians(0.02) ** 2, 2.5e-4 ** 2)
-    noisy = kalman_gains(1e-3, 3e-5, math.radians(0.05) ** 2, 2.5e-4 ** 2)
+    quiet = kalman_gains(1e-3, 3e-5, math.radians(0.02) ** 2, 3.2e-4 ** 2)
+    noisy = kalman_gains(1e-3, 3e-5, math.radians(0.05) ** 2, 3.2e-4 ** 2)
     lively = kalman_gains(1e-3, 3e-5, math.radians(0.05) ** 2, 1e-3 ** 2)
     assert all(0 < n < q < 1 for n, q in zip(noisy, quiet)), (noisy, quiet)
     assert all(n < v for n, v in zip(noisy, lively)), (noisy, lively)
