@@ -406,6 +406,12 @@ class PTOSController(CascadeController):
     the plate's speed swings with the friction (more process noise than at rest), so a Kalman-style gain is
     higher there, and falls with the measurement noise's variance (the noisy sensor keeps the resting gain).
 
+    On a sensor noisier than ``innovation_noise_deg`` (``noisy_sensor_filter``; the noise read at rest from
+    the sensed angle's second difference, :meth:`measure_noise`) the observer carries a load torque and takes
+    the steady-state Kalman gains of (angle, speed, load torque) for that noise
+    (:func:`.predictive.kalman_gains`, the torque a random walk of ``observer_torque_noise_Nm`` per period),
+    and the laws act on its angle instead of the sensed one.
+
     The predictor's observer has a rest check (``rest_band_deg``, ``rest_check_speed_rad_s``): when the sensed
     angle has stayed within the band for two periods, an observer speed above the check speed is replaced by
     the sensed one (see :meth:`.predictive.StopPredictor.observe`). After a landing the capture law keeps the
