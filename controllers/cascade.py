@@ -544,7 +544,7 @@ class PTOSController(CascadeController):
 
     def noisy_gains(self) -> tuple:
         """Steady-state Kalman gains (angle, speed, load torque) for the sensor noise variance measured at rest
-        (:meth:`measure_noise`), rounded to 5 % steps so the Riccati solutions are cached."""
+        (:meth:`measure_noise`), rounded to 5 % steps so each Riccati solution is computed once."""
         var = math.exp(round(math.log(max(self.noise_var, 1e-30)) * 20.0) / 20.0)
         return kalman_gains(self.dt, self.model.inertia_kg_m2, var, self.torque_noise ** 2)
 

@@ -43,16 +43,29 @@ def kalman_gains(dt: float, inertia_kg_m2: float, noise_var_rad2: float, torque_
     measured with noise of variance ``noise_var_rad2``:
 
         x+ = A x,  A = [[1, T, T^2/2J], [0, 1, T/J], [0, 0, 1]],  y = phi + n:   P from the discrete Riccati
-        equation, K = P H' / (H P H' + R)
+        equation P = A P A' - A P H' (H P H' + R)^-1 H P A' + Q, K = P H' / (H P H' + R)
 
-    Returned dimensionless as :meth:`StopPredictor.observe` takes them: (K_phi, K_omega T, K_tau T^2 / J)."""
-    from scipy.linalg import solve_discrete_are
-
+    solved by the structure-preserving doubling algorithm (Chu, Fan & Lin 2005; quadratic convergence, a few
+    3x3 solves: ~0.1-0.3 ms, where scipy's ``solve_discrete_are`` took 8 ms under load, too slow for a 1 ms
+    control period). Returned dimensionless as :meth:`StopPredictor.observe` takes them:
+    (K_phi, K_omega T, K_tau T^2 / J)."""
     T, J = dt, inertia_kg_m2
     A = np.array([[1.0, T, T * T / (2 * J)], [0.0, 1.0, T / J], [0.0, 0.0, 1.0]])
     H = np.array([[1.0, 0.0, 0.0]])
-    P = solve_discrete_are(A.T, H.T, np.diag([0.0, 0.0, torque_var_Nm2]), np.array([[noise_var_rad2]]))
-    K = (P @ H.T / (H @ P @ H.T + noise_var_rad2)).ravel()
+    # the filter Riccati equation is the control one for (A', H'): X = F' X (I + G X)^-1 F + Q, F = A'
+    F, G, X = A.T.copy(), H.T @ H / noise_var_rad2, np.diag([0.0, 0.0, torque_var_Nm2])
+    eye = np.eye(3)
+    for _ in range(60):
+        W = np.linalg.solve(eye + G @ X, np.hstack([F, G]))       # (I + G X)^-1 [F, G]
+        WF, WG = W[:, :3], W[:, 3:]
+        X_new = X + F.T @ X @ WF
+        G = G + F @ WG @ F.T
+        F = F @ WF
+        if np.max(np.abs(X_new - X)) <= 1e-13 * np.max(np.abs(X_new)):
+            X = X_new
+            break
+        X = X_new
+    K = (X @ H.T / (H @ X @ H.T + noise_var_rad2)).ravel()
     return float(K[0]), float(K[1] * T), float(K[2] * T * T / J)
 
 

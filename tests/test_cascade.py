@@ -454,6 +454,15 @@ def test_kalman_gains_fall_with_the_sensor_noise_and_rise_with_the_process_noise
     lively = kalman_gains(1e-3, 3e-5, math.radians(0.05) ** 2, 1e-3 ** 2)
     assert all(0 < n < q < 1 for n, q in zip(noisy, quiet)), (noisy, quiet)
     assert all(n < v for n, v in zip(noisy, lively)), (noisy, lively)
+    # the doubling solution is the Riccati equation's (scipy's solver as the reference)
+    from scipy.linalg import solve_discrete_are
+
+    T, J, R, q = 1e-3, 3e-5, math.radians(0.05) ** 2, 3.2e-4 ** 2
+    A = np.array([[1, T, T * T / (2 * J)], [0, 1, T / J], [0, 0, 1]])
+    H = np.array([[1.0, 0, 0]])
+    P = solve_discrete_are(A.T, H.T, np.diag([0, 0, q]), np.array([[R]]))
+    K = (P @ H.T / (H @ P @ H.T + R)).ravel() * np.array([1, T, T * T / J])
+    assert np.allclose(noisy, K, rtol=1e-8), (noisy, K)
 
 
 def test_ptos_noisy_sensor_gets_the_kalman_observer_and_acts_on_its_estimate():
