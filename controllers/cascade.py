@@ -56,7 +56,7 @@ import math
 
 from .base import BaseController, VelocityEstimator, check_gain, register_controller
 from .model import resolve_model
-from .predictive import StopPredictor
+from .predictive import StopPredictor, kalman_gains
 from .selftest import BreakawaySelfTest
 
 
@@ -235,6 +235,10 @@ class CascadeController(BaseController):
     def reset_outer(self) -> None:
         pass
 
+    def control_angle(self, y: float, meas, V: float) -> float:
+        """The angle the laws act on (rad): the sensed one (subclasses may filter it)."""
+        return y
+
     def outer(self, e: float, y: float, v: float, r: float, v_r: float, a_r: float) -> float:  # pragma: no cover
         raise NotImplementedError
 
@@ -268,6 +272,7 @@ class CascadeController(BaseController):
         m = self.model
         k = m.torque_constant_Nm_per_A
         V = self.supply(meas)
+        y = self.control_angle(y, meas, V)
         v = self.estimator.update(y)
         a_hat = (v - self.v_prev) / self.dt
         self.v_prev = v
@@ -401,6 +406,12 @@ class PTOSController(CascadeController):
     the plate's speed swings with the friction (more process noise than at rest), so a Kalman-style gain is
     higher there, and falls with the measurement noise's variance (the noisy sensor keeps the resting gain).
 
+    On a sensor noisier than ``innovation_noise_deg`` (``noisy_sensor_filter``; the noise read at rest from
+    the sensed angle's second difference, :meth:`measure_noise`) the observer carries a load torque and takes
+    the steady-state Kalman gains of (angle, speed, load torque) for that noise
+    (:func:`.predictive.kalman_gains`, the torque a random walk of ``observer_torque_noise_Nm`` per period),
+    and the laws act on its angle instead of the sensed one.
+
     The predictor's observer has a rest check (``rest_band_deg``, ``rest_check_speed_rad_s``): when the sensed
     angle has stayed within the band for two periods, an observer speed above the check speed is replaced by
     the sensed one (see :meth:`.predictive.StopPredictor.observe`). After a landing the capture law keeps the
@@ -423,8 +434,14 @@ class PTOSController(CascadeController):
                  observer_angle_gain: float = 0.5, observer_speed_gain: float = 0.25,
                  observer_tracking_speed_gain: float = 0.55,
                  observer_noise_schedule: bool = True, follow_current_floor: float = 0.8,
-                 follow_headroom: float = 0.2, **kw):
+                 follow_headroom: float = 0.5, noisy_sensor_filter: bool = True,
+                 observer_torque_noise_Nm: float = 3.2e-4, **kw):
         own = type(self).__name__
+        self.noise_settle = 0.02
+        if not isinstance(noisy_sensor_filter, bool):
+            raise ValueError(f"{own}: noisy_sensor_filter = {noisy_sensor_filter!r} is invalid: expected True or False")
+        self.noisy_filter = noisy_sensor_filter
+        self.torque_noise = check_gain(own, "observer_torque_noise_Nm", observer_torque_noise_Nm, positive=True)
         self.observer_angle_gain = check_gain(own, "observer_angle_gain", observer_angle_gain, non_negative=True,
                                               upper=1.0001)
         self.observer_speed_gain = check_gain(own, "observer_speed_gain", observer_speed_gain, non_negative=True,
@@ -480,6 +497,10 @@ class PTOSController(CascadeController):
         self.landed_at = None
         self.innovation_ms = getattr(self, "innovation_ref", 0.0) ** 2
         self.observed_periods = 0
+        self.noise_var = 0.0
+        self._y3 = [None, None, None]
+        self._r_noise = None
+        self._still = 0
         self.r_prev = None
         self.dr_prev = 0.0
         self.r_rate = 0.0
@@ -497,31 +518,84 @@ class PTOSController(CascadeController):
         self.dr_prev = dr
         return dr / self.dt if steady else 0.0
 
+    def noise_ratio(self) -> float:
+        """q = min(1, reference innovation RMS / the resting innovation's RMS measured so far)."""
+        return min(1.0, self.innovation_ref / math.sqrt(max(self.innovation_ms, 1e-30))) if self.speed_schedule else 1.0
+
+    def observe(self, y: float, meas) -> None:
+        """One period of the predictor's observer, at the self-tuned levels."""
+        st, p = self.tuning, self.predictor
+        p.update_levels(st.resistance_ohm, st.friction_level, st.spring_level)
+        self.v_pred = p.speed                       # the speed the innovation's period started from
+        # the observer's speed gain on the angle innovation, scheduled on the sensor noise the controller measured
+        # at rest (the resting innovation's mean square, e.g. during the key-on hold): full up to the reference
+        # innovation RMS, falling as 1/RMS beyond (each period's speed correction is gain x innovation / T: on a
+        # noisy sensor the full gain turns the noise into speed errors the landing law brakes and drives on)
+        q = self.noise_ratio()
+        self.speed_gain_now = self.observer_speed_gain * q
+        if self.r_rate != 0.0:
+            self.speed_gain_now = max(self.speed_gain_now, self.tracking_speed_gain * q * q)
+        ga, gt = self.observer_angle_gain, 0.0
+        if self.noisy_filter and self.noisy:
+            ga, self.speed_gain_now, gt = self.noisy_gains()
+        p.observe(y, meas.current_A, meas.last_duty, self.V_now, ga, self.speed_gain_now, gt)
+        self.observed_periods += 1
+        self.observed_now = True
+
+    def noisy_gains(self) -> tuple:
+        """Steady-state Kalman gains (angle, speed, load torque) for the sensor noise variance measured at rest
+        (:meth:`measure_noise`), rounded to 5 % steps so each Riccati solution is computed once."""
+        var = math.exp(round(math.log(max(self.noise_var, 1e-30)) * 20.0) / 20.0)
+        return kalman_gains(self.dt, self.model.inertia_kg_m2, var, self.torque_noise ** 2)
+
+    def measure_noise(self, y: float, r: float) -> None:
+        """The angle sensor's noise variance, from the second difference of the sensed angle while the reference
+        stands still and the plate has rested for 20 ms (white noise of variance s^2 gives 6 s^2; a resting or creeping plate's
+        own motion hardly any, unlike the innovation, which a wrong load model also fills), mean over 50 ms."""
+        ys = self._y3
+        ys[0], ys[1], ys[2] = ys[1], ys[2], y
+        still = r == self._r_noise and ys[0] is not None and abs(self.predictor.speed) < self.rest_speed
+        self._r_noise = r
+        self._still = self._still + 1 if still else 0
+        if self._still * self.dt >= self.noise_settle:
+            d2 = ys[2] - 2.0 * ys[1] + ys[0]
+            self.noise_var += self._g_noise * (d2 * d2 / 6.0 - self.noise_var)
+
+    @property
+    def noisy(self) -> bool:
+        """The sensor is noisier than ``innovation_noise_deg`` (RMS, measured at rest)."""
+        return self.noise_var > self.innovation_ref ** 2
+
+    def control_angle(self, y: float, meas, V: float) -> float:
+        self.observed_now = False
+        self.y_control = y
+        if not self.noisy_filter or self.predictor is None or meas.current_A is None:
+            return y
+        self.measure_noise(y, self.r_seen)
+        if not self.noisy:
+            return y
+        self.V_now = V
+        self.observe(y, meas)
+        self.y_control = float(self.predictor.angle)
+        return self.y_control
+
     def compute(self, y: float, r_target: float, meas) -> float:
         self.r_rate = self.ff * self.reference_rate(r_target)
-        r_seen = r_target
+        r_seen = self.r_seen = r_target
         # the duty acts over the coming period and the plate is judged against the reference at its end: a
         # reference moving at a steady rate is followed where it will be then (without this, a ramp is tracked
         # one period behind: 0.14 deg at 140 deg/s)
         r_target = r_seen + self.preview * self.r_rate * self.dt
         duty = super().compute(y, r_target, meas)
-        e = r_target - y
         if self.predictor is None or meas.current_A is None:
             return duty
+        if not self.observed_now:
+            self.observe(y, meas)
+        y = self.y_control
+        e = r_target - y
         m, st = self.model, self.tuning
         p = self.predictor
-        p.update_levels(st.resistance_ohm, st.friction_level, st.spring_level)
-        v_pred = p.speed                            # the speed the innovation's period started from
-        # the observer's speed gain on the angle innovation, scheduled on the sensor noise the controller measured
-        # at rest (the resting innovation's mean square, e.g. during the key-on hold): full up to the reference
-        # innovation RMS, falling as 1/RMS beyond (each period's speed correction is gain x innovation / T: on a
-        # noisy sensor the full gain turns the noise into speed errors the landing law brakes and drives on)
-        q = min(1.0, self.innovation_ref / math.sqrt(max(self.innovation_ms, 1e-30))) if self.speed_schedule else 1.0
-        self.speed_gain_now = self.observer_speed_gain * q
-        if self.r_rate != 0.0:
-            self.speed_gain_now = max(self.speed_gain_now, self.tracking_speed_gain * q * q)
-        p.observe(y, meas.current_A, meas.last_duty, self.V_now, self.observer_angle_gain, self.speed_gain_now)
-        self.observed_periods += 1
+        v_pred = self.v_pred
         d_test = None
         if self.selftest is not None and self.selftest.phase != self.selftest.DONE:
             d_test = self.selftest.update(y, r_seen, meas.current_A, meas.last_duty, self.V_now, st.resistance_ohm,
