@@ -80,6 +80,8 @@ class Structure:
     z: float              # z-score of the explained sum of squares against chi^2(p)
     share: float          # RMS of the explained part in the residual's noise units
     groups: dict          # feature group -> share of the explained sum of squares it carries alone
+    yardstick: tuple = ()  # (s^2, tau) the explained sum of squares was scaled by (its own, or a reference's)
+    rec: int = 0           # index of the recording in the Data it was scored on
 
     @property
     def significant(self) -> bool:
@@ -166,8 +168,10 @@ def features(rec) -> dict:
     return {"angle": torque, "current": volt}
 
 
-def structure(r: np.ndarray, groups: dict, kind: str) -> Structure | None:
-    """The persistent part of residual ``r`` (in noise units) on the feature ``groups``; None where too short."""
+def structure(r: np.ndarray, groups: dict, kind: str, yardstick: tuple = ()) -> Structure | None:
+    """The persistent part of residual ``r`` (in noise units) on the feature ``groups``; None where too short.
+    ``yardstick`` (s^2, tau): scale the explained sum of squares by a reference model's left variance and
+    correlation time instead of this residual's own (module docstring, "One yardstick")."""
     r = np.asarray(r, float)
     bad = [k for k, g in groups.items() if g.shape[0] != r.size]
     if bad:
@@ -192,6 +196,8 @@ def structure(r: np.ndarray, groups: dict, kind: str) -> Structure | None:
     if s2 <= 0:
         return None
     tau = integrated_time(left)
+    if yardstick:
+        s2, tau = yardstick
     S = float(fitted @ fitted) / (s2 * tau)
     z = (S - p) / math.sqrt(2.0 * p)
     share = math.sqrt(float(np.mean(fitted ** 2)))
@@ -205,34 +211,34 @@ def structure(r: np.ndarray, groups: dict, kind: str) -> Structure | None:
         c, *_ = np.linalg.lstsq(Gc, rr, rcond=None)
         f = Gc @ c - float(np.mean(rr))
         out[name] = float(f @ f) / tot
-    return Structure(kind, float(z), share, out)
+    return Structure(kind, float(z), share, out, (s2, tau))
 
 
-def persistent(rd, pred, plant) -> list:
+def persistent(rd, pred, plant, ref: list | None = None) -> list:
     """The Structures of one recording (model.RecData) scored with prediction ``pred`` = (angle [deg], current
     [A]) of the observer for the model ``plant``: the angle innovation, the same in steady motion, and the
-    current residual where the current is recorded."""
+    current residual where the current is recorded. ``ref``: a reference model's Structures of this recording,
+    whose yardsticks scale these (module docstring, "One yardstick")."""
     rec = rd.rec
     feats = features(rec)
+    sticks = {s.kind: s.yardstick for s in ref or ()}
     out = []
     e = (pred[0] - rec.angle_deg) / rd.noise_deg
-    s = structure(e, feats["angle"], "angle")
-    if s is not None:
-        out.append(s)
     moving = steady_motion(rec, rd.noise_deg, friction_speed_rad_s(plant))
-    s = structure(np.where(moving, e, np.nan), feats["angle"], "motion")
-    if s is not None:
-        out.append(s)
+    series = [(e, feats["angle"], "angle"), (np.where(moving, e, np.nan), feats["angle"], "motion")]
     if feats["current"] is not None and pred[1] is not None:
-        s = structure((pred[1] - rec.current_A) / rd.current_sigma_A, feats["current"], "current")
+        series.append(((pred[1] - rec.current_A) / rd.current_sigma_A, feats["current"], "current"))
+    for r, groups, kind in series:
+        s = structure(r, groups, kind, sticks.get(kind, ()))
         if s is not None:
             out.append(s)
     return out
 
 
-def persistent_mismatch(data, plant, sensor) -> list:
+def persistent_mismatch(data, plant, sensor, ref: list | None = None) -> list:
     """The Structures of every recording of ``data`` scored by the observer, for the model (plant, sensor);
-    [] where no recording is (an open loop: the replay's own tests decide) or the model cannot be simulated."""
+    [] where no recording is (an open loop: the replay's own tests decide) or the model cannot be simulated.
+    ``ref``: the Structures of a reference model (the same call for it), whose yardsticks scale these."""
     obs = [k for k, rd in enumerate(data.recs) if rd.residual == "observer"]
     if not obs:
         return []
@@ -240,7 +246,14 @@ def persistent_mismatch(data, plant, sensor) -> list:
     pred = simulate(plant, sensor, data)
     if pred is None:
         return []
-    return [s for k in obs for s in persistent(data.recs[k], pred[k], plant)]
+    by_rec = {}
+    for s in ref or ():
+        by_rec.setdefault(s.rec, []).append(s)
+    out = []
+    for k in obs:
+        for s in persistent(data.recs[k], pred[k], plant, by_rec.get(k)):
+            out.append(dataclasses.replace(s, rec=k))
+    return out
 
 
 def detected(structures: list) -> bool:

@@ -177,6 +177,31 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
     return ref, screened
 
 
+def _structural(ctx: _Ctx, ref: F.FitResult, rest: list, z_cur: float, persistent) -> list:
+    """Step 1b (closed loops): the screened candidates outside the dBIC shortlist whose screening fit already
+    accounts for the persistent structure ``z_cur`` of the current model (disturbance.resolved), best first,
+    among those that fit at least as well as the current model (``ref``: its refit at the screening step). The
+    z is scaled by the residual's own variance, so a fit that went astray (a larger residual) would "account"
+    for any structure by drowning it.
+
+    Why: the screening's likelihood is the observer's one-step residual, which a loop keeps near the noise; an
+    effect the loop compensates (a free play the controller drives through) can leave the dBIC near zero while
+    its fit removes most of the structure that made the recording significant (measured, docs/diagnosis.md
+    "Closed loop: screening by the structure accounted for (round 12)"). One observer simulation per candidate."""
+    out = []
+    for s in rest:
+        if not s[2].rss <= ref.rss:
+            continue
+        z = persistent(s[2])
+        if disturbance.resolved(z_cur, z):
+            out.append((z, s))
+    out.sort(key=lambda t: t[0])
+    if out:
+        ctx.log("  screened by the structure they account for: "
+                + ", ".join(f"{s[1]} z {z_cur:.1f} -> {z:.1f} (dBIC {s[0]:+.0f})" for z, s in out))
+    return [s for _, s in out[:TOP_K]]
+
+
 def _validate(ctx: _Ctx, cur: F.FitResult, top: list, rnd: int):
     """Step 2: the current model and the ``top`` screened candidates cross-validated. Returns (the current
     model's held-out error, [(held-out gain, dBIC, id, FitResult)] of those that could be simulated), or None
@@ -285,6 +310,11 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
             break
         ref, screened = screen
         top = [s for s in screened[:TOP_K] if s[0] < -BIC_MIN]
+        z_cur = persistent(cur) if persistent is not None else 0.0
+        structural = []
+        if z_cur > disturbance.Z_DETECT:        # a closed loop's structure: screened by what it accounts for too
+            structural = _structural(ctx, ref, [s for s in screened if s not in top], z_cur, persistent)
+            top = top + structural
         if not top:
             break
         val = _validate(ctx, cur, top, rnd)
@@ -293,7 +323,6 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         cv0, gains = val
         cv_gain = {c: g for g, _, c, _ in gains}
         passing = [g for g in gains if g[0] >= CV_MIN_GAIN]
-        z_cur = persistent(cur) if persistent is not None else 0.0
         resolves = None
         if z_cur > disturbance.Z_DETECT:        # a closed loop's current residual: its structure can decide
             def resolves(fr, z=z_cur):
@@ -303,6 +332,8 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         if passing:
             passing.sort(key=lambda s: -s[0])
             evidence = _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd)
+            if resolves is not None:            # the others may still account for the structure
+                passing += sorted([g for g in gains if g not in passing], key=lambda s: s[1])
         elif resolves is not None:
             passing = sorted(gains, key=lambda s: s[1])          # by dBIC: the current's fit decides
             evidence = None
