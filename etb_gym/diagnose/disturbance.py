@@ -44,6 +44,18 @@ transient after a breakaway; MOTION_AFTER_S a reversal or stop just ahead (the s
 A periodic detent, a sensor map off the truth (the spring evaluated at the wrong angle) or any torque over
 angle, speed or current that persists while the plate slides shows there whatever the controller does.
 
+One yardstick. z scales the explained sum of squares by the residual's own left variance s^2 and correlation
+time tau, which is right for one model's null but not for comparing two models: a fit that lowers the
+residual's noise or its correlation (a friction candidate smoothing the current's stick-slip jitter) raises the
+z of the *same* structure, and a fit gone astray drowns any structure in its own larger residual. Where models
+are compared (does a candidate account for the structure? is a mismatch left?), each model's structure is
+scaled by the *nominal* model's (s^2, tau) of the same residual (``persistent_mismatch(..., ref=...)``): the
+energy of what is left, on the yardstick the structure was found with. The nominal model itself reads exactly
+its own z; so does every recording whose nominal structure stays below Z_DETECT (nothing is compared there).
+Measured (docs/diagnosis.md, round 12): stribeck_friction@2 random seed 3, the candidate's fit left 0.011 of the
+current's noise of the nominal's 0.015 and read z 34.6 on its own yardstick against 15.2 before, 6.4 on the
+nominal's.
+
 A recording scored by the observer has a *persistent mismatch* when the current residual's or the steady
 motion's z exceeds Z_DETECT (measured, docs/diagnosis.md "Closed loop: a torque-side statistic in steady
 motion (round 11)"). The whole angle innovation's structure is still reported (which feature group carries

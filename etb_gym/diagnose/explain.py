@@ -24,7 +24,10 @@ held-out gain, the screened candidates (dBIC < -BIC_MIN) are tried in order of d
 its full fit accounts for the structure (disturbance.resolved: the same statistic that found it, at most
 RESOLVE_SHARE = half of its z left). While such a structure stands, a candidate that accounts for it is accepted
 without the angle's RMS gain (the loop keeps the angle where it was), and the next candidates are tried
-when one does not.
+when one does not (those that pass the held-out gain first, then the others by dBIC). The screening's own
+likelihood (the observer's one-step residual, which the loop keeps near the noise) can miss an effect whose
+fit accounts for the structure: such screened candidates (``_structural``) join the shortlist. Every z here is
+on the nominal model's yardstick (disturbance.py, "One yardstick").
 Candidates run in a process pool (fork) when ``jobs > 1``.
 """
 from __future__ import annotations
