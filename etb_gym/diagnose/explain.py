@@ -183,14 +183,14 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
 def _structural(ctx: _Ctx, ref: F.FitResult, rest: list, z_cur: float, persistent) -> list:
     """Step 1b (closed loops): the screened candidates outside the dBIC shortlist whose screening fit already
     accounts for the persistent structure ``z_cur`` of the current model (disturbance.resolved), best first,
-    among those that fit at least as well as the current model (``ref``: its refit at the screening step). The
-    z is scaled by the residual's own variance, so a fit that went astray (a larger residual) would "account"
-    for any structure by drowning it.
+    among those that fit at least as well as the current model (``ref``: its refit at the screening step): a
+    fit that went astray is no evidence (measured: a Stribeck screening fit at dBIC +870 read z 113.8 -> 23.2 on
+    its own yardstick, the structure drowned in its larger residual).
 
     Why: the screening's likelihood is the observer's one-step residual, which a loop keeps near the noise; an
-    effect the loop compensates (a free play the controller drives through) can leave the dBIC near zero while
-    its fit removes most of the structure that made the recording significant (measured, docs/diagnosis.md
-    "Closed loop: screening by the structure accounted for (round 12)"). One observer simulation per candidate."""
+    effect the loop compensates can leave the dBIC near zero while its fit removes most of the structure that
+    made the recording significant (docs/diagnosis.md, "Closed loop: one yardstick, and screening by the
+    structure accounted for (round 12)"). One observer simulation per candidate."""
     out = []
     for s in rest:
         if not s[2].rss <= ref.rss:
