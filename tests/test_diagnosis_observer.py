@@ -137,6 +137,28 @@ def test_persistent_structure_statistic_is_null_on_noise_and_large_on_a_feature_
         D.structure(noise[:100], groups, "current")
 
 
+def test_a_structure_is_measured_on_the_reference_yardstick_so_a_noisier_fit_cannot_drown_it():
+    """disturbance.structure(yardstick=(s^2, tau)): the explained sum of squares scaled by a reference model's
+    left variance and correlation time. The same bias under four times the noise reads a small z on its own
+    yardstick (drowned) and the same large z on the reference's; half the bias on the reference's yardstick
+    reads about a quarter of its z above the null (the energy of what is left)."""
+    from etb_gym.diagnose import disturbance as D
+    rng = np.random.default_rng(1)
+    n = 4000
+    t = np.arange(n) * 1e-3
+    groups = {"offset": np.ones((n, 1)), "drift": ((t - t.mean()) / t.std())[:, None]}
+    noise = rng.standard_normal(n)
+    bias = 0.3 * groups["drift"][:, 0]
+    ref = D.structure(noise + bias, groups, "current")
+    assert ref.significant and len(ref.yardstick) == 2
+    assert D.structure(noise + bias, groups, "current", ref.yardstick).z == pytest.approx(ref.z)
+    drowned = D.structure(4.0 * noise + bias, groups, "current")
+    kept = D.structure(4.0 * noise + bias, groups, "current", ref.yardstick)
+    assert drowned.z < ref.z / 4 and kept.z > 0.8 * ref.z
+    half = D.structure(noise + 0.5 * bias, groups, "current", ref.yardstick)
+    assert 0.15 * ref.z < half.z < 0.35 * ref.z and D.resolved(ref.z, half.z)
+
+
 def test_closed_loop_current_residual_structure_tells_a_wrong_resistance_from_the_exact_model():
     """disturbance.persistent_mismatch on a closed loop (default PID): a model whose resistance is 5 % off
     leaves a persistent structure in its current residual, one whose spring preload is 8 % off in the angle
@@ -156,6 +178,12 @@ def test_closed_loop_current_residual_structure_tells_a_wrong_resistance_from_th
                                                     SensorModel())}
     assert off["current"].significant and off["current"].z > D.Z_DETECT, {k: s.as_dict() for k, s in off.items()}
     assert D.deciding_z(off.values()) == max(off["current"].z, off["motion"].z)
+    # on the yardstick of the exact model's residuals (run.diagnose: the nominal's): still significant, and
+    # the exact model measured on its own yardstick reads what it read
+    on_own = {s.kind: s for s in D.persistent_mismatch(data, truth.with_params({"drive.resistance_ohm": 1.05 * R}),
+                                                       SensorModel(), ref=own)}
+    assert on_own["current"].significant
+    assert [s.z for s in D.persistent_mismatch(data, truth, SensorModel(), ref=own)] == pytest.approx([s.z for s in own])
     # a torque the current does not see (the spring's preload 8 % off): the loop holds the plate, the current
     # residual stays within its null, the angle innovation over steady motion carries it
     P = truth.params_dict()["spring.preload_Nm"]

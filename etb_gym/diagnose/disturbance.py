@@ -44,6 +44,18 @@ transient after a breakaway; MOTION_AFTER_S a reversal or stop just ahead (the s
 A periodic detent, a sensor map off the truth (the spring evaluated at the wrong angle) or any torque over
 angle, speed or current that persists while the plate slides shows there whatever the controller does.
 
+One yardstick. z scales the explained sum of squares by the residual's own left variance s^2 and correlation
+time tau, which is right for one model's null but not for comparing two models: a fit that lowers the
+residual's noise or its correlation (a friction candidate smoothing the current's stick-slip jitter) raises the
+z of the *same* structure, and a fit gone astray drowns any structure in its own larger residual. Where models
+are compared (does a candidate account for the structure? is a mismatch left?), each model's structure is
+scaled by the *nominal* model's (s^2, tau) of the same residual (``persistent_mismatch(..., ref=...)``): the
+energy of what is left, on the yardstick the structure was found with. The nominal model itself reads exactly
+its own z; so does every recording whose nominal structure stays below Z_DETECT (nothing is compared there).
+Measured (docs/diagnosis.md, round 12): stribeck_friction@2 random seed 3, the candidate's fit left 0.011 of the
+current's noise of the nominal's 0.015 and read z 34.6 on its own yardstick against 15.2 before, 6.4 on the
+nominal's.
+
 A recording scored by the observer has a *persistent mismatch* when the current residual's or the steady
 motion's z exceeds Z_DETECT (measured, docs/diagnosis.md "Closed loop: a torque-side statistic in steady
 motion (round 11)"). The whole angle innovation's structure is still reported (which feature group carries
@@ -80,6 +92,8 @@ class Structure:
     z: float              # z-score of the explained sum of squares against chi^2(p)
     share: float          # RMS of the explained part in the residual's noise units
     groups: dict          # feature group -> share of the explained sum of squares it carries alone
+    yardstick: tuple = ()  # (s^2, tau) the explained sum of squares was scaled by (its own, or a reference's)
+    rec: int = 0           # index of the recording in the Data it was scored on
 
     @property
     def significant(self) -> bool:
@@ -166,8 +180,10 @@ def features(rec) -> dict:
     return {"angle": torque, "current": volt}
 
 
-def structure(r: np.ndarray, groups: dict, kind: str) -> Structure | None:
-    """The persistent part of residual ``r`` (in noise units) on the feature ``groups``; None where too short."""
+def structure(r: np.ndarray, groups: dict, kind: str, yardstick: tuple = ()) -> Structure | None:
+    """The persistent part of residual ``r`` (in noise units) on the feature ``groups``; None where too short.
+    ``yardstick`` (s^2, tau): scale the explained sum of squares by a reference model's left variance and
+    correlation time instead of this residual's own (module docstring, "One yardstick")."""
     r = np.asarray(r, float)
     bad = [k for k, g in groups.items() if g.shape[0] != r.size]
     if bad:
@@ -192,6 +208,8 @@ def structure(r: np.ndarray, groups: dict, kind: str) -> Structure | None:
     if s2 <= 0:
         return None
     tau = integrated_time(left)
+    if yardstick:
+        s2, tau = yardstick
     S = float(fitted @ fitted) / (s2 * tau)
     z = (S - p) / math.sqrt(2.0 * p)
     share = math.sqrt(float(np.mean(fitted ** 2)))
@@ -205,34 +223,34 @@ def structure(r: np.ndarray, groups: dict, kind: str) -> Structure | None:
         c, *_ = np.linalg.lstsq(Gc, rr, rcond=None)
         f = Gc @ c - float(np.mean(rr))
         out[name] = float(f @ f) / tot
-    return Structure(kind, float(z), share, out)
+    return Structure(kind, float(z), share, out, (s2, tau))
 
 
-def persistent(rd, pred, plant) -> list:
+def persistent(rd, pred, plant, ref: list | None = None) -> list:
     """The Structures of one recording (model.RecData) scored with prediction ``pred`` = (angle [deg], current
     [A]) of the observer for the model ``plant``: the angle innovation, the same in steady motion, and the
-    current residual where the current is recorded."""
+    current residual where the current is recorded. ``ref``: a reference model's Structures of this recording,
+    whose yardsticks scale these (module docstring, "One yardstick")."""
     rec = rd.rec
     feats = features(rec)
+    sticks = {s.kind: s.yardstick for s in ref or ()}
     out = []
     e = (pred[0] - rec.angle_deg) / rd.noise_deg
-    s = structure(e, feats["angle"], "angle")
-    if s is not None:
-        out.append(s)
     moving = steady_motion(rec, rd.noise_deg, friction_speed_rad_s(plant))
-    s = structure(np.where(moving, e, np.nan), feats["angle"], "motion")
-    if s is not None:
-        out.append(s)
+    series = [(e, feats["angle"], "angle"), (np.where(moving, e, np.nan), feats["angle"], "motion")]
     if feats["current"] is not None and pred[1] is not None:
-        s = structure((pred[1] - rec.current_A) / rd.current_sigma_A, feats["current"], "current")
+        series.append(((pred[1] - rec.current_A) / rd.current_sigma_A, feats["current"], "current"))
+    for r, groups, kind in series:
+        s = structure(r, groups, kind, sticks.get(kind, ()))
         if s is not None:
             out.append(s)
     return out
 
 
-def persistent_mismatch(data, plant, sensor) -> list:
+def persistent_mismatch(data, plant, sensor, ref: list | None = None) -> list:
     """The Structures of every recording of ``data`` scored by the observer, for the model (plant, sensor);
-    [] where no recording is (an open loop: the replay's own tests decide) or the model cannot be simulated."""
+    [] where no recording is (an open loop: the replay's own tests decide) or the model cannot be simulated.
+    ``ref``: the Structures of a reference model (the same call for it), whose yardsticks scale these."""
     obs = [k for k, rd in enumerate(data.recs) if rd.residual == "observer"]
     if not obs:
         return []
@@ -240,7 +258,14 @@ def persistent_mismatch(data, plant, sensor) -> list:
     pred = simulate(plant, sensor, data)
     if pred is None:
         return []
-    return [s for k in obs for s in persistent(data.recs[k], pred[k], plant)]
+    by_rec = {}
+    for s in ref or ():
+        by_rec.setdefault(s.rec, []).append(s)
+    out = []
+    for k in obs:
+        for s in persistent(data.recs[k], pred[k], plant, by_rec.get(k)):
+            out.append(dataclasses.replace(s, rec=k))
+    return out
 
 
 def detected(structures: list) -> bool:

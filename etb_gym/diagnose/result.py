@@ -48,14 +48,19 @@ def significant_residual(data: Data, res: list) -> bool:
     return False
 
 
-def significant_mismatch(data: Data, res: list, plant, sensor, z_ref: float | None = None) -> bool:
+def significant_mismatch(data: Data, res: list, plant, sensor, z_ref: float | None = None,
+                         ref: list | None = None) -> bool:
     """:func:`significant_residual`, or a persistent structure in the current residual or in the angle
     innovation over steady motion of a recording scored by the observer (a closed loop: the loop hides an
     effect in the angle, not in the current it needed nor while the plate slides; disturbance.py). ``res``: the
     angle residuals of the model (``plant``, ``sensor``). ``z_ref``: the nominal model's deciding z
     (disturbance.deciding_z); a structure that the model has accounted for against it (disturbance.resolved,
-    the rule that accepts a candidate for it) no longer counts."""
+    the rule that accepts a candidate for it) no longer counts. ``ref``: the nominal model's Structures
+    (disturbance.persistent_mismatch): the model's are then measured on their yardsticks, and ``z_ref``
+    defaults to their deciding z."""
     if significant_residual(data, res):
         return True
-    z = D.deciding_z(D.persistent_mismatch(data, plant, sensor))
+    if ref is not None and z_ref is None:
+        z_ref = D.deciding_z(ref)
+    z = D.deciding_z(D.persistent_mismatch(data, plant, sensor, ref=ref))
     return z > D.Z_DETECT and (z_ref is None or not D.resolved(z_ref, z))
