@@ -86,3 +86,18 @@ def test_a_ripple_whose_amplitude_follows_the_stroke_prompts_the_current_scaled_
     bump = lambda a: -0.03 * np.exp(-0.5 * ((a - 45.0) / 12.0) ** 2) + noise      # noqa: E731
     assert not U.period_hint(_describe(rms, {}, None, bump))
     assert not U.period_hint(_describe(rms, {}, None, lambda a: 0.0 * a + noise))   # noise alone
+
+
+def test_the_knots_either_side_of_limp_home_are_not_read_as_the_torque():
+    """Where the plate rests at limp-home the limp-home spring's contact balances whatever the table holds (a
+    closed loop's detent table read three times the detent's amplitude on the knot 0.2 deg from it)."""
+    from types import SimpleNamespace as NS
+    grid = np.radians(np.linspace(0.0, 90.0, 73))            # 1.25 deg knots
+    lh = np.radians(2.16)
+    angles = np.concatenate([np.full(500, 2.16), np.linspace(2.0, 70.0, 3000)])
+    data = NS(recs=[NS(rec=NS(angle_deg=angles))])
+    m = U.identified(grid, data, lh)
+    near = np.flatnonzero(np.abs(grid - lh) < np.radians(1.25))
+    assert near.size == 2 and not m[near].any()
+    assert m[3:56].all()                                    # the rest of the visited stroke
+    assert U.identified(grid, data)[near[1]]                # without a limp-home (a plant without one)

@@ -190,10 +190,12 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     if steps and not periodic and not significant(cur):
         return cur, steps, res
     res.heldout_catalogue = h_cat = _heldout_catalogue(nominal, cur, steps, res.refinements, data)
-    g = U.fit_generic(nominal, data, log=log, persistent=persistent)
+    resolves = _resolves(persistent, nominal, log)
+    loop = persistent if resolves is not None else None     # a closed loop with a structure to account for
+    g = U.fit_generic(nominal, data, log=log, persistent=loop)
     if U.periodic_term(g.shape) is not None or U.period_hint(g.shape):
         # periodic in angle: is it a torque of its own (detent) or one that scales with the current (ripple)?
-        gc = U.fit_generic(nominal, data, log=log, current_fine=True, persistent=persistent)
+        gc = U.fit_generic(nominal, data, log=log, current_fine=True, persistent=loop)
         if gc.heldout < (1.0 - MIN_GAIN) * g.heldout and U.periodic_term(gc.shape) is not None:
             log(f"  the periodic torque scales with the current: held-out {gc.heldout:.3g} against {g.heldout:.3g}")
             g = gc
@@ -210,8 +212,7 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
             return cur, steps, res
         # the generic tables extend the calibrated nominal model, so a family that does their job is tried on
         # it too (not on top of the catalogue effects they displace), and accepted by the same closed-loop rule
-        alt = U.catalogue_alternative(g, nominal, FAMILY_OF_TERM, data, significant, log=log,
-                                      resolves=_resolves(persistent, nominal, log))
+        alt = U.catalogue_alternative(g, nominal, FAMILY_OF_TERM, data, significant, log=log, resolves=resolves)
         if alt is not None:           # a catalogue family with its own table does the generic tables' job
             from .explain import Step, dbic
             log(f"  {alt.id} with its table (held-out {alt.heldout:.3g}) explains what the generic tables do "
