@@ -241,10 +241,10 @@ def describe(g: Generic, data: Data) -> dict:
            if v - base_rms > max(0.5 * data.noise_deg, IMPORTANCE_SHARE * top)}
     sig_z = {}
     if g.importance_z and g.z is not None:          # a closed loop: the structure that comes back without a table
-        from .disturbance import Z_DETECT
+        from .disturbance import Z_DETECT, resolved
         top_z = max(g.importance_z.values()) - g.z
-        sig_z = {k: v - g.z for k, v in g.importance_z.items()
-                 if v > Z_DETECT and v - g.z > IMPORTANCE_SHARE * top_z}
+        sig_z = {k: v - g.z for k, v in g.importance_z.items()   # the table accounts for a significant structure
+                 if v > Z_DETECT and resolved(v, g.z) and v - g.z > IMPORTANCE_SHARE * top_z}
     words = []
     shape = {"terms": {}}
     ta = g.tables["unmodelled_angle"]
