@@ -132,16 +132,20 @@ def _rms_deg(spec: Spec, x, data: Data) -> float:
 
 # ------------------------------------------------------------------------------------ describing a table
 def periodicity(angle_deg: np.ndarray, value: np.ndarray, weight: np.ndarray | None = None,
-                periods_deg=PERIODS_DEG, harmonics: int = HARMONICS) -> dict:
+                periods_deg=PERIODS_DEG, harmonics: int = HARMONICS, knot_deg: float = 0.0) -> dict:
     """Is ``value`` over ``angle_deg`` periodic? Least squares on [quadratic trend, harmonics 1..H of 1/P]
     over a fine grid of trial periods P, refined around the best; R2 = share of the detrended variance the
     harmonics explain. Returns period_deg, amplitude (half peak-to-peak of the periodic part), r2, cycles,
-    harmonic_share (energy beyond the fundamental) and periodic (R2 >= PERIODIC_R2 over >= MIN_CYCLES)."""
+    harmonic_share (energy beyond the fundamental) and periodic (R2 >= PERIODIC_R2 over >= MIN_CYCLES).
+    ``knot_deg``: the values are a table's knots, each standing for the angles within half a spacing of it,
+    so the range they cover (for the cycles and the longest trial period) is one spacing wider than the
+    first-to-last knot distance."""
     a = np.asarray(angle_deg, float)
     v = np.asarray(value, float)
     w = np.ones_like(a) if weight is None else np.asarray(weight, float)
     sw = np.sqrt(w)
     span = float(a.max() - a.min()) if a.size else 0.0
+    cover = span + knot_deg if span > 0 else 0.0
     c = (a - a.mean()) / max(span, 1e-9)
     T = np.stack([np.ones_like(a), c, c ** 2], axis=1)
     coef, *_ = np.linalg.lstsq(T * sw[:, None], v * sw, rcond=None)
@@ -163,7 +167,7 @@ def periodicity(angle_deg: np.ndarray, value: np.ndarray, weight: np.ndarray | N
         e = v - X @ b
         return 1.0 - float(np.sum(w * e ** 2)) / var, b
 
-    lo, hi = periods_deg[0], min(periods_deg[1], span)
+    lo, hi = periods_deg[0], min(periods_deg[1], cover)
     if hi <= lo:
         return out
     Ps = np.geomspace(lo, hi, 400)
@@ -193,10 +197,14 @@ def periodicity(angle_deg: np.ndarray, value: np.ndarray, weight: np.ndarray | N
     ph = [2 * math.pi * (h + 1) * a / P for h in range(harmonics)]
     per = sum(b[3 + 2 * h] * np.cos(ph[h]) + b[4 + 2 * h] * np.sin(ph[h]) for h in range(harmonics))
     e = np.array(amp_h) ** 2
-    out.update(period_deg=P, amplitude=0.5 * float(np.max(per) - np.min(per)), r2=float(r2b), cycles=span / P,
+    out.update(period_deg=P, amplitude=0.5 * float(np.max(per) - np.min(per)), r2=float(r2b), cycles=cover / P,
                harmonic_share=float(e[1:].sum() / max(e.sum(), 1e-300)),
-               periodic=bool(r2b >= PERIODIC_R2 and span / P >= MIN_CYCLES))
+               periodic=bool(r2b >= PERIODIC_R2 and cover / P >= MIN_CYCLES))
     return out
+
+
+def _spacing(grid_deg: np.ndarray) -> float:
+    return float(np.median(np.diff(grid_deg))) if len(grid_deg) > 1 else 0.0
 
 
 def resolvable(grid_deg: np.ndarray) -> tuple:
@@ -254,7 +262,8 @@ def describe(g: Generic, data: Data) -> dict:
     m = identified(grid, data, lh)
     adeg = np.degrees(grid)
     tq = np.asarray(ta.params.torque_Nm)
-    per = periodicity(adeg[m], tq[m], np.minimum(vis[m], 200.0), resolvable(adeg)) if m.sum() >= 8 else \
+    per = periodicity(adeg[m], tq[m], np.minimum(vis[m], 200.0), resolvable(adeg), knot_deg=_spacing(adeg)) \
+        if m.sum() >= 8 else \
         {"periodic": False, "period_deg": None, "amplitude": 0.0, "r2": 0.0, "cycles": 0.0, "harmonic_share": 0.0}
     shape["angle"] = {"periodic": per["periodic"], "period_deg": per["period_deg"], "amplitude_Nm": per["amplitude"],
                       "periodic_r2": per["r2"], "cycles": per["cycles"], "harmonic_share": per["harmonic_share"],
@@ -292,7 +301,7 @@ def describe(g: Generic, data: Data) -> dict:
                 cm = identified(cg, data, lh)
                 if cm.sum() >= 8:
                     cper = periodicity(np.degrees(cg[cm]), dk[cm], np.minimum(cv[cm], 200.0),
-                                       resolvable(np.degrees(cg)))
+                                       resolvable(np.degrees(cg)), knot_deg=_spacing(np.degrees(cg)))
             if cper["periodic"]:
                 words.append(f"a torque proportional to the current and periodic in angle: period "
                              f"{cper['period_deg']:.1f} deg, amplitude {cper['amplitude']:.3g} N m/A")
