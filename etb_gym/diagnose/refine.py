@@ -155,8 +155,11 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     catalogue's explanation when they predict held-out data better, or, with ``persistent`` (FitResult ->
     the deciding z of a closed loop's persistent structure, disturbance.py), when the catalogue model leaves a
     significant structure that the tables account for (disturbance.resolved: the rule that accepts a
-    catalogue candidate on it; a loop hides the effect from the held-out angle). Returns (final fit, steps,
-    Outcome)."""
+    catalogue candidate on it; a loop hides the effect from the held-out angle). Before "outside the
+    catalogue", the families of the generic model's main table are tried with their own tables on the
+    calibrated nominal model (unmodelled.catalogue_alternative; in a closed loop also accepted when they
+    account for the structure); a family so named replaces the steps the generic tables displaced. Returns
+    (final fit, steps, Outcome)."""
     from . import unmodelled as U
     res = Outcome()
     cur = final

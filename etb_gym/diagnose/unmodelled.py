@@ -18,7 +18,9 @@ ids ``unmodelled_torque`` / ``unmodelled_voltage`` with the words "outside the c
 Decision (:func:`compare`): the generic model replaces the catalogue's explanation when its held-out error
 (shapes.heldout_error, same folds and refit rule as the catalogue model's) is lower by GAIN_OUT, or when its
 angle table is periodic (no catalogue family acts periodically in angle) and at least as good; then no catalogue
-effect is reported as the explanation.
+effect is reported as the explanation, unless a catalogue family of the dominant table does the same job with its
+own table (:func:`catalogue_alternative`). In a closed loop (``persistent``) a table also matters when removing it
+brings back a persistent structure it accounts for (the loop holds the angle's RMS).
 """
 from __future__ import annotations
 
