@@ -10,7 +10,7 @@ from pathlib import Path
 from etb_gym.diagnose import proof
 
 KEYS = ("family", "effects", "verdict", "named", "outside_summary", "period_deg", "period_true_deg", "effect_size",
-        "heldout_rms_before", "heldout_rms_after", "true_noise", "time_s")
+        "heldout_rms_before", "heldout_rms_after", "true_noise", "time_s", "cpu_s")
 
 
 def main(argv=None):
@@ -21,14 +21,22 @@ def main(argv=None):
     ap.add_argument("--nameplate", choices=("3B", "random"), default="3B",
                     help="the truth's nameplate: the default 3B, or a random one diagnosed from a plant file 10-20 %% off")
     ap.add_argument("--out", default="out", help="parent folder of the case's output folder (default out)")
+    ap.add_argument("--verbose", action="store_true", help="print the diagnosis's log (the proof runs it quietly)")
+    ap.add_argument("--row", help="append the row (all its fields, JSON) to this file")
     a = ap.parse_args(argv)
     if a.duration <= 0:
         ap.error(f"--duration = {a.duration} is invalid: expected a positive length in seconds")
     opts = proof._parser().parse_args(["--duration", str(a.duration), "--jobs", "1", "--nameplate", a.nameplate])
     work = Path(a.out) / ("dev_" + a.case.replace("@", "_s") + f"_{a.seed}")
     work.mkdir(parents=True, exist_ok=True)
+    if a.verbose:
+        quiet = proof.Options
+        proof.Options = lambda **kw: quiet(**{**kw, "verbose": True})
     row, _ = proof.run_case(a.case, a.seed, opts, str(work))
     print(json.dumps({k: row.get(k) for k in KEYS}, indent=1))
+    if a.row:
+        with open(a.row, "a") as fh:
+            fh.write(json.dumps({"case": a.case, "nameplate": a.nameplate, **row}, default=str) + "\n")
 
 
 if __name__ == "__main__":

@@ -130,6 +130,23 @@ def _accounts(persistent, cur: F.FitResult, generic: F.FitResult, log) -> bool:
     return ok
 
 
+def _resolves(persistent, base: F.FitResult, log):
+    """FitResult -> bool: does it account for the closed-loop persistent structure ``base`` leaves
+    (disturbance.resolved)? None without ``persistent`` or without a significant structure."""
+    if persistent is None:
+        return None
+    from . import disturbance
+    z0 = persistent(base)
+    if z0 <= disturbance.Z_DETECT:
+        return None
+
+    def resolves(fr: F.FitResult) -> bool:
+        z = persistent(fr)
+        log(f"  the closed loop's persistent structure: z {z0:.1f} -> {z:.1f}")
+        return disturbance.resolved(z0, z)
+    return resolves
+
+
 def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, significant, log=print,
            outside: bool = True, persistent=None):
     """After the greedy selection: refine each accepted family's shape by its table (kept when the held-out
@@ -138,8 +155,11 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     catalogue's explanation when they predict held-out data better, or, with ``persistent`` (FitResult ->
     the deciding z of a closed loop's persistent structure, disturbance.py), when the catalogue model leaves a
     significant structure that the tables account for (disturbance.resolved: the rule that accepts a
-    catalogue candidate on it; a loop hides the effect from the held-out angle). Returns (final fit, steps,
-    Outcome)."""
+    catalogue candidate on it; a loop hides the effect from the held-out angle). Before "outside the
+    catalogue", the families of the generic model's main table are tried with their own tables on the
+    calibrated nominal model (unmodelled.catalogue_alternative; in a closed loop also accepted when they
+    account for the structure); a family so named replaces the steps the generic tables displaced. Returns
+    (final fit, steps, Outcome)."""
     from . import unmodelled as U
     res = Outcome()
     cur = final
@@ -173,10 +193,12 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     if steps and not periodic and not significant(cur):
         return cur, steps, res
     res.heldout_catalogue = h_cat = _heldout_catalogue(nominal, cur, steps, res.refinements, data)
-    g = U.fit_generic(nominal, data, log=log)
-    if U.periodic_term(g.shape) is not None:
+    resolves = _resolves(persistent, nominal, log)
+    loop = persistent if resolves is not None else None     # a closed loop with a structure to account for
+    g = U.fit_generic(nominal, data, log=log, persistent=loop)
+    if U.periodic_term(g.shape) is not None or U.period_hint(g.shape):
         # periodic in angle: is it a torque of its own (detent) or one that scales with the current (ripple)?
-        gc = U.fit_generic(nominal, data, log=log, current_fine=True)
+        gc = U.fit_generic(nominal, data, log=log, current_fine=True, persistent=loop)
         if gc.heldout < (1.0 - MIN_GAIN) * g.heldout and U.periodic_term(gc.shape) is not None:
             log(f"  the periodic torque scales with the current: held-out {gc.heldout:.3g} against {g.heldout:.3g}")
             g = gc
@@ -191,15 +213,18 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
             log(f"  the generic tables fit better, but their main term ({dom[0]}) is what {sorted(named)} "
                 "describes: the catalogue's name is kept")
             return cur, steps, res
-        alt = U.catalogue_alternative(g, cur, FAMILY_OF_TERM, data, significant, log=log)
+        # the generic tables extend the calibrated nominal model, so a family that does their job is tried on
+        # it too (not on top of the catalogue effects they displace), and accepted by the same closed-loop rule
+        alt = U.catalogue_alternative(g, nominal, FAMILY_OF_TERM, data, significant, log=log, resolves=resolves)
         if alt is not None:           # a catalogue family with its own table does the generic tables' job
             from .explain import Step, dbic
             log(f"  {alt.id} with its table (held-out {alt.heldout:.3g}) explains what the generic tables do "
-                f"({g.heldout:.3g}): named instead of 'outside the catalogue'")
-            if alt.refinement is not None:
-                res.refinements.append(alt.refinement)
+                f"({g.heldout:.3g}): named instead of 'outside the catalogue'"
+                + (f"; {', '.join(st.id for st in steps)} not given as the explanation" if steps else ""))
+            res.refinements = [alt.refinement] if alt.refinement is not None else []
+            res.dropped = tuple(st.id for st in steps)
             gain = 1.0 - alt.heldout / h_cat if h_cat > 0 else 0.0
-            return alt.fit, list(steps) + [Step(alt.id, alt.formula, dbic(alt.formula, cur), gain)], res
+            return alt.fit, [Step(alt.id, alt.formula, dbic(alt.formula, nominal), gain)], res
         res.outside = True
         res.dropped = tuple(st.id for st in steps)
         log(f"  outside the catalogue ({g.id}): held-out {g.heldout:.3g} against {h_cat:.3g} for the catalogue model"

@@ -18,7 +18,9 @@ ids ``unmodelled_torque`` / ``unmodelled_voltage`` with the words "outside the c
 Decision (:func:`compare`): the generic model replaces the catalogue's explanation when its held-out error
 (shapes.heldout_error, same folds and refit rule as the catalogue model's) is lower by GAIN_OUT, or when its
 angle table is periodic (no catalogue family acts periodically in angle) and at least as good; then no catalogue
-effect is reported as the explanation.
+effect is reported as the explanation, unless a catalogue family of the dominant table does the same job with its
+own table (:func:`catalogue_alternative`). In a closed loop (``persistent``) a table also matters when removing it
+brings back a persistent structure it accounts for (the loop holds the angle's RMS).
 """
 from __future__ import annotations
 
@@ -72,6 +74,8 @@ class Generic:
     importance: dict              # term id -> RMS angle residual [deg] with that table removed
     rms_deg: float                # RMS angle residual of the generic model [deg]
     shape: dict                   # the description (see describe)
+    z: float | None = None        # a closed loop: the persistent structure's z the generic model leaves
+    importance_z: dict = dataclasses.field(default_factory=dict)   # term id -> that z with the table removed
 
     @property
     def id(self) -> str:
@@ -79,9 +83,12 @@ class Generic:
         return "unmodelled_voltage" if t == "unmodelled_voltage" else "unmodelled_torque"
 
 
-def fit_generic(nominal: F.FitResult, data: Data, log=print, current_fine: bool = False) -> Generic:
+def fit_generic(nominal: F.FitResult, data: Data, log=print, current_fine: bool = False,
+                persistent=None) -> Generic:
     """The calibrated nominal model plus the generic tables, fitted by penalized output error
-    (``current_fine``: see :func:`generic_terms`)."""
+    (``current_fine``: see :func:`generic_terms`). ``persistent`` (FitResult -> z of a closed loop's persistent
+    structure, disturbance.py): which table matters is also judged by the structure that comes back when it is
+    removed (the loop holds the angle, so removing a table barely moves the angle's RMS)."""
     base_spec = Spec(nominal.spec.base, (), nominal.spec.nominal)
     x_nom = np.asarray(nominal.x, float)[:len(base_spec.params)]
     terms = generic_terms(base_spec.base, data, current_fine=current_fine)
@@ -96,16 +103,23 @@ def fit_generic(nominal: F.FitResult, data: Data, log=print, current_fine: bool 
     vals = spec.values(pf.fit.x)
     tables = {t.id: t.component(np.array([vals[f"{t.id}.c{k}"] for k in range(t.n_coef)])) for t in terms}
     rms = _rms_deg(spec, pf.fit.x, data)
-    imp = {}
+    imp, imp_z = {}, {}
+    z = persistent(pf.fit) if persistent is not None else None
     for t in terms:                                   # the RMS residual with this table removed again
         x = pf.fit.x.copy()
         for k, (o, _) in enumerate(spec.params):
             if o == t.id:
                 x[k] = 0.0
         imp[t.id] = _rms_deg(spec, x, data)
-    g = Generic(pf.fit, terms, pf.lams_rel, h, tables, imp, rms, {})
+        if z is not None:
+            imp_z[t.id] = persistent(dataclasses.replace(pf.fit, x=x))
+    g = Generic(pf.fit, terms, pf.lams_rel, h, tables, imp, rms, {}, z, imp_z)
     g.shape = describe(g, data)
-    log(f"  outside the catalogue: generic tables, held-out {h:.3g}, RMS {rms:.4f} deg; {g.shape['summary']}")
+    a = g.shape["angle"]
+    log(f"  outside the catalogue: generic tables, held-out {h:.3g}, RMS {rms:.4f} deg"
+        + (f", persistent z {z:.1f} (without each table: " + ", ".join(f"{k[11:]} {v:.1f}" for k, v in imp_z.items())
+           + ")" if z is not None else "")
+        + f"; angle table's best period {a['period_deg'] or 0:.1f} deg, R2 {a['periodic_r2']:.2f}; {g.shape['summary']}")
     return g
 
 
@@ -120,16 +134,20 @@ def _rms_deg(spec: Spec, x, data: Data) -> float:
 
 # ------------------------------------------------------------------------------------ describing a table
 def periodicity(angle_deg: np.ndarray, value: np.ndarray, weight: np.ndarray | None = None,
-                periods_deg=PERIODS_DEG, harmonics: int = HARMONICS) -> dict:
+                periods_deg=PERIODS_DEG, harmonics: int = HARMONICS, knot_deg: float = 0.0) -> dict:
     """Is ``value`` over ``angle_deg`` periodic? Least squares on [quadratic trend, harmonics 1..H of 1/P]
     over a fine grid of trial periods P, refined around the best; R2 = share of the detrended variance the
     harmonics explain. Returns period_deg, amplitude (half peak-to-peak of the periodic part), r2, cycles,
-    harmonic_share (energy beyond the fundamental) and periodic (R2 >= PERIODIC_R2 over >= MIN_CYCLES)."""
+    harmonic_share (energy beyond the fundamental) and periodic (R2 >= PERIODIC_R2 over >= MIN_CYCLES).
+    ``knot_deg``: the values are a table's knots, each standing for the angles within half a spacing of it,
+    so the range they cover (for the cycles and the longest trial period) is one spacing wider than the
+    first-to-last knot distance."""
     a = np.asarray(angle_deg, float)
     v = np.asarray(value, float)
     w = np.ones_like(a) if weight is None else np.asarray(weight, float)
     sw = np.sqrt(w)
     span = float(a.max() - a.min()) if a.size else 0.0
+    cover = span + knot_deg if span > 0 else 0.0
     c = (a - a.mean()) / max(span, 1e-9)
     T = np.stack([np.ones_like(a), c, c ** 2], axis=1)
     coef, *_ = np.linalg.lstsq(T * sw[:, None], v * sw, rcond=None)
@@ -151,7 +169,7 @@ def periodicity(angle_deg: np.ndarray, value: np.ndarray, weight: np.ndarray | N
         e = v - X @ b
         return 1.0 - float(np.sum(w * e ** 2)) / var, b
 
-    lo, hi = periods_deg[0], min(periods_deg[1], span)
+    lo, hi = periods_deg[0], min(periods_deg[1], cover)
     if hi <= lo:
         return out
     Ps = np.geomspace(lo, hi, 400)
@@ -181,10 +199,14 @@ def periodicity(angle_deg: np.ndarray, value: np.ndarray, weight: np.ndarray | N
     ph = [2 * math.pi * (h + 1) * a / P for h in range(harmonics)]
     per = sum(b[3 + 2 * h] * np.cos(ph[h]) + b[4 + 2 * h] * np.sin(ph[h]) for h in range(harmonics))
     e = np.array(amp_h) ** 2
-    out.update(period_deg=P, amplitude=0.5 * float(np.max(per) - np.min(per)), r2=float(r2b), cycles=span / P,
+    out.update(period_deg=P, amplitude=0.5 * float(np.max(per) - np.min(per)), r2=float(r2b), cycles=cover / P,
                harmonic_share=float(e[1:].sum() / max(e.sum(), 1e-300)),
-               periodic=bool(r2b >= PERIODIC_R2 and span / P >= MIN_CYCLES))
+               periodic=bool(r2b >= PERIODIC_R2 and cover / P >= MIN_CYCLES))
     return out
+
+
+def _spacing(grid_deg: np.ndarray) -> float:
+    return float(np.median(np.diff(grid_deg))) if len(grid_deg) > 1 else 0.0
 
 
 def resolvable(grid_deg: np.ndarray) -> tuple:
@@ -201,14 +223,23 @@ def _visited(grid_rad: np.ndarray, data: Data) -> np.ndarray:
     return np.histogram(phi, edges)[0].astype(float)
 
 
-def identified(grid_rad: np.ndarray, data: Data) -> np.ndarray:
-    """Knots whose table value the recordings identify: visited (>= 5 samples near them) and not an end knot.
-    The stroke's tables end on the stops (``shapes.angle_grid``), where the stop's contact force balances
-    whatever the table holds while the plate rests there: an end knot's value is not the torque's (a detent's
-    table read at its closed-stop knot +0.013 N m, the largest of the table, and hid its period; round 11)."""
+def identified(grid_rad: np.ndarray, data: Data, limp_home_rad: float = math.nan) -> np.ndarray:
+    """Knots whose table value the recordings identify: visited (>= 5 samples near them), not an end knot and
+    not a knot whose interval reaches limp-home. The stroke's tables end on the stops (``shapes.angle_grid``),
+    where the stop's contact force balances whatever the table holds while the plate rests there: an end
+    knot's value is not the torque's (a detent's table read at its closed-stop knot +0.013 N m, the largest of
+    the table, and hid its period; round 11). The limp-home spring's contact band does the same where the
+    plate rests at limp-home (a closed loop's detent table read -0.015 N m on the knot 0.2 deg from it, three
+    times the detent's amplitude, and hid its period; round 12)."""
     vis = _visited(grid_rad, data)
     m = vis >= 5
     m[[0, -1]] = False
+    g = np.asarray(grid_rad, float)
+    if math.isfinite(limp_home_rad) and g.size > 1:
+        k = int(np.searchsorted(g, limp_home_rad))
+        for j in (k - 1, k):                          # the knots on either side of limp-home
+            if 0 <= j < g.size:
+                m[j] = False
     return m
 
 
@@ -218,20 +249,28 @@ def describe(g: Generic, data: Data) -> dict:
     top = max(g.importance.values()) - base_rms if g.importance else 0.0
     sig = {k: v for k, v in g.importance.items()
            if v - base_rms > max(0.5 * data.noise_deg, IMPORTANCE_SHARE * top)}
+    sig_z = {}
+    if g.importance_z and g.z is not None:          # a closed loop: the structure that comes back without a table
+        from .disturbance import Z_DETECT, resolved
+        top_z = max(g.importance_z.values()) - g.z
+        sig_z = {k: v - g.z for k, v in g.importance_z.items()   # the table accounts for a significant structure
+                 if v > Z_DETECT and resolved(v, g.z) and v - g.z > IMPORTANCE_SHARE * top_z}
     words = []
     shape = {"terms": {}}
     ta = g.tables["unmodelled_angle"]
     grid = np.asarray(ta.params.angle_rad)
     vis = _visited(grid, data)
-    m = identified(grid, data)
+    lh = g.fit.spec.base.limp_home_rad if g.fit is not None else math.nan
+    m = identified(grid, data, lh)
     adeg = np.degrees(grid)
     tq = np.asarray(ta.params.torque_Nm)
-    per = periodicity(adeg[m], tq[m], np.minimum(vis[m], 200.0), resolvable(adeg)) if m.sum() >= 8 else \
+    per = periodicity(adeg[m], tq[m], np.minimum(vis[m], 200.0), resolvable(adeg), knot_deg=_spacing(adeg)) \
+        if m.sum() >= 8 else \
         {"periodic": False, "period_deg": None, "amplitude": 0.0, "r2": 0.0, "cycles": 0.0, "harmonic_share": 0.0}
     shape["angle"] = {"periodic": per["periodic"], "period_deg": per["period_deg"], "amplitude_Nm": per["amplitude"],
-                      "periodic_r2": per["r2"], "harmonic_share": per["harmonic_share"],
+                      "periodic_r2": per["r2"], "cycles": per["cycles"], "harmonic_share": per["harmonic_share"],
                       "visited_deg": [float(adeg[m].min()), float(adeg[m].max())] if m.any() else None}
-    order = sorted(sig, key=lambda k: -sig[k])
+    order = sorted(sig, key=lambda k: -sig[k]) + sorted((k for k in sig_z if k not in sig), key=lambda k: -sig_z[k])
     for k in order:
         if k == "unmodelled_angle":
             if per["periodic"]:
@@ -261,8 +300,10 @@ def describe(g: Generic, data: Data) -> dict:
             cper = {"periodic": False}
             if cg.size >= 20:                           # fine grid: is the current's torque periodic in angle?
                 cv = _visited(cg, data)
-                cm = identified(cg, data)
+                cm = identified(cg, data, lh)
                 if cm.sum() >= 8:
+                    # (by first-to-last knot: with the knots' coverage a 3 s open-loop detent's current table
+                    # passed at 2.5 periods and the current-scaled fit, 5 % lower held-out, called it a ripple)
                     cper = periodicity(np.degrees(cg[cm]), dk[cm], np.minimum(cv[cm], 200.0),
                                        resolvable(np.degrees(cg)))
             if cper["periodic"]:
@@ -278,6 +319,8 @@ def describe(g: Generic, data: Data) -> dict:
             words.append(f"a voltage drop over current in the coil loop, {dv[0]:+.3g} V at {ci[0]:.2g} A to "
                          f"{dv[-1]:+.3g} V at {ci[-1]:.2g} A")
         shape["terms"][k] = {"rms_without_deg": g.importance[k]}
+        if k in g.importance_z:
+            shape["terms"][k]["z_without"] = g.importance_z[k]
     if not words:
         words.append("no single table dominates; the mismatch is spread over angle, speed and current")
     shape["summary"] = "outside the catalogue: " + "; ".join(words)
@@ -362,15 +405,17 @@ def _try_family(cur: F.FitResult, cid: str, data: Data, log) -> FamilyAlternativ
 
 
 def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: dict, data: Data, significant,
-                          log=print) -> FamilyAlternative | None:
+                          log=print, resolves=None) -> FamilyAlternative | None:
     """Before a residual is called outside the catalogue: the catalogue families that act through the generic
     model's dominant table (``family_of_term``: an angle torque -> airflow, spring asymmetry, angle-dependent
     friction; a current torque -> shaft flux loss, torque-constant error; ...) are each added to ``cur`` with
     their formula and their own table (shape learned from the data), and the best is returned when it does the
     generic model's job with one table instead of four: its held-out error within GAIN_OUT of the generic's
-    (the generic tables may not win by their extra freedom alone), or its residual within the noise. A
-    periodic angle torque (no catalogue family is periodic in angle: neither the generic angle table nor the
-    family's own may be) or a family that does not lower the RMS by RMS_GAIN is no alternative. Among families
+    (the generic tables may not win by their extra freedom alone), or its residual within the noise, and it
+    lowers the RMS by RMS_GAIN; or, with ``resolves`` (FitResult -> bool: a closed loop's persistent structure
+    accounted for, the rule that accepts a candidate in the selection; the loop hides the effect from the angle's
+    RMS and held-out error), it accounts for that structure. A periodic angle torque (no catalogue family is
+    periodic in angle: neither the generic angle table nor the family's own may be) is no alternative. Among families
     whose errors are within FAMILY_TIE, the better formula is taken, but airflow and spring asymmetry (one
     table) are told apart by where the generic angle torque acts (:func:`angle_torque_family`)."""
     if periodic_term(generic.shape) is not None:
@@ -404,11 +449,29 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
             return None
     rms_cur = _rms_deg(cur.spec, cur.x, data)
     rms_alt = _rms_deg(alt.fit.spec, alt.fit.x, data)
-    if not rms_alt <= (1.0 - RMS_GAIN) * rms_cur:
-        return None
-    if alt.heldout <= generic.heldout / (1.0 - GAIN_OUT) or not significant(alt.fit):
+    if rms_alt <= (1.0 - RMS_GAIN) * rms_cur and (alt.heldout <= generic.heldout / (1.0 - GAIN_OUT)
+                                                   or not significant(alt.fit)):
         return alt
+    if resolves is not None and resolves(alt.fit):
+        log(f"  {alt.id} with its table accounts for the closed loop's persistent structure")
+        return alt
+    log(f"  {alt.id} with its table: RMS {rms_alt:.4f} deg against {rms_cur:.4f} deg, held-out "
+        f"{alt.heldout:.3g} against {generic.heldout:.3g} for the generic tables: no catalogue alternative")
     return None
+
+
+PROBE_R2 = 0.5 * PERIODIC_R2   # an angle table this close to periodic is refitted with the current's table fine
+
+
+def period_hint(shape: dict) -> bool:
+    """Does the significant angle table show a period that falls short of the test (R2 >= PROBE_R2 over
+    MIN_CYCLES)? A ripple that scales with the current is periodic in the current's table, not in the angle's
+    (its amplitude follows the current along the stroke); :func:`refine.refine` then fits the current's table on
+    the fine grid, and the decision is that fit's (periodic by PERIODIC_R2, held-out error lower)."""
+    a = shape.get("angle", {})
+    return bool("unmodelled_angle" in shape.get("significant_terms", []) and not a.get("periodic")
+                and a.get("period_deg") and a.get("periodic_r2", 0.0) >= PROBE_R2
+                and a.get("cycles", 0.0) >= MIN_CYCLES)
 
 
 def periodic_term(shape: dict) -> dict | None:
