@@ -14,6 +14,7 @@ from ..plantfile import save_plant
 from . import disturbance as D
 from . import locate as L
 from .candidates import CANDIDATES
+from .envelope import text as envelope_text
 from .model import angle_residuals_deg, simulate
 from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_mismatch
 
@@ -332,6 +333,8 @@ def markdown(result, figures) -> str:
             lines += ["", "Observer residual: one-step prediction error, the model's angle pulled towards the measured "
                       f"angle after every sample (bandwidth {r['observer']['bandwidth_rad_s']:g} rad/s); the calibrated "
                       "plant itself is unchanged."]
+    if r.get("envelope"):
+        lines += ["", "## Where the twin is trustworthy", "", envelope_text(r["envelope"])]
     figures = list(figures) + [f for f in r.get("shape_figures", []) if f not in figures]
     lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
     lines += ["", f"The calibrated plant (with the effects that act on the plate) is `{r['calibrated_plant']}`: "

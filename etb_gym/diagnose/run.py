@@ -21,6 +21,7 @@ from .explain import Runner, select
 from .measurement import DEFAULT_RESOLUTION_DEG
 from .model import Data, SimulationFailed, Spec, angle_residuals_deg, prepare, replay_view, restart_view, simulate
 from . import disturbance as D
+from . import envelope
 from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_mismatch, significant_residual  # noqa: F401
 
 _significant_residual = significant_residual
@@ -333,6 +334,8 @@ def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skippe
                              for rd in data.recs}
     # which residual each recording was calibrated, located and explained with (model.prepare, observer.py)
     result.report["residual"] = {rd.rec.name: rd.residual for rd in data.recs}
+    # where the twin has evidence: the states the recordings held and passed through (envelope.py)
+    result.report["envelope"] = envelope.from_recordings([rd.rec for rd in data.recs]).as_dict()
     if any(rd.residual == "observer" for rd in data.recs):
         # the persistent structure of the observer's residuals (disturbance.py): before and after
         result.report["persistent_structure"] = {
