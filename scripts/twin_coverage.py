@@ -71,6 +71,13 @@ def collect(case: str, duration: float, work: Path) -> dict:
     return kept
 
 
+MEMORY_S = (0.0, 0.25)          # the split without and with a replay's memory of an uncovered state
+
+
+def _over(x, sig):
+    return None if x is None else x / sig
+
+
 def _resid(plant, sensor, rec) -> np.ndarray:
     data = prepare([rec], 12.0)                 # as proof.score_heldout: a replay of the recorded voltage
     pred = simulate(plant, sensor, data)
@@ -100,6 +107,13 @@ def analyse(case: str, k: dict, truth_substeps: int = 50) -> dict:
         out[f"{tag}_nominal"] = float(np.sqrt(np.mean(rn ** 2))) / sig
         out[f"{tag}_truth"] = float(np.sqrt(np.mean(rx ** 2))) / sig
         if tag == "held":
+            for mem in MEMORY_S[1:]:              # the same split, samples after an uncovered state counted outside
+                cm = env.covered(r.t_s, r.angle_deg, memory_s=mem)
+                s = EV.split_rms(rt, cm)
+                out[f"held_m{mem:g}"] = {"time_uncovered": s["time_uncovered"],
+                                          "sq_error_uncovered": s["sq_error_uncovered"],
+                                          "twin_covered": _over(s["rms_covered_deg"], sig),
+                                          "twin_uncovered": _over(s["rms_uncovered_deg"], sig)}
             cov = env.covered(r.t_s, r.angle_deg)
             s = EV.split_rms(rt, cov)
             out["held_time_uncovered"] = s["time_uncovered"]

@@ -40,6 +40,11 @@ def test_envelope_holds_where_held_and_passes_where_moved():
     a2 = np.where(t2 < 1.0, 10.5, np.where(t2 < 1.25, 10.5 + 40.0 * (t2 - 1.0), 20.5))
     cov = env.covered(t2, a2 + np.random.default_rng(1).normal(0.0, 0.03, t2.size))
     assert cov[100:900].all() and cov[1050:1200].all() and not cov[1400:].any()
+    # with a memory, the samples after leaving an uncovered state stay outside for that long
+    t3 = np.arange(0.0, 2.0, 1e-3)
+    a3 = np.where(t3 < 1.0, 20.5, 10.5)
+    first = [int(np.flatnonzero(env.covered(t3, a3, memory_s=m))[0]) for m in (0.0, 0.25)]
+    assert 1000 <= first[0] < 1050 and abs(first[1] - first[0] - 250) <= 1
     s = E.split_rms(np.where(cov, 1.0, 3.0), cov)
     assert s["rms_covered_deg"] == pytest.approx(1.0) and s["rms_uncovered_deg"] == pytest.approx(3.0)
     assert s["time_uncovered"] == pytest.approx(np.mean(~cov))
@@ -51,6 +56,8 @@ def test_bad_inputs_fail_naming_what():
         E.from_recordings([])
     with pytest.raises(ValueError, match="bin_deg = 0"):
         E.from_recordings([_rec(*_ramp_hold(20.5))], bin_deg=0.0)
+    with pytest.raises(ValueError, match="memory_s = -1"):
+        E.from_recordings([_rec(*_ramp_hold(20.5))]).covered(np.arange(3.0), np.zeros(3), memory_s=-1.0)
     with pytest.raises(ValueError, match="equal-length"):
         E.speed_deg_s(np.arange(3.0), np.arange(4.0))
     with pytest.raises(ValueError, match="differ in length"):

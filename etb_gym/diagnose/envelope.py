@@ -60,11 +60,20 @@ class Envelope:
         inside = (k >= 0) & (k < self.dwell_s.shape[1])
         return np.clip(k, 0, self.dwell_s.shape[1] - 1), inside
 
-    def covered(self, t_s, angle_deg) -> np.ndarray:
-        """Per sample of a recording (its time and measured angle): is its state inside the envelope?"""
+    def covered(self, t_s, angle_deg, memory_s: float = 0.0) -> np.ndarray:
+        """Per sample of a recording (its time and measured angle): is its state inside the envelope -- and with
+        ``memory_s`` > 0, were the states of the preceding ``memory_s`` too (a replay carries an error made outside
+        the envelope on into the next states)?"""
         k, inside = self._bins(angle_deg)
         m = motion_index(speed_deg_s(t_s, angle_deg))
-        return inside & (self.dwell_s[m, k] >= self._need()[m])
+        cov = inside & (self.dwell_s[m, k] >= self._need()[m])
+        if memory_s < 0:
+            raise ValueError(f"Envelope.covered: memory_s = {memory_s} is invalid: expected 0 or more seconds")
+        w = int(round(memory_s / float(np.median(np.diff(t_s))))) if memory_s > 0 else 0
+        if w > 0:                                       # uncovered if any of the last w samples was
+            out = np.concatenate([np.zeros(w, int), np.cumsum(~cov)])
+            cov = (out[w:] - out[:-w]) == 0
+        return cov
 
     def _need(self) -> np.ndarray:
         """Per motion, the time in a bin that covers it: MIN_DWELL_S held, any sample moving."""
