@@ -45,7 +45,6 @@ from ..io import write_atomic
 from ..plant import make_plant
 from ..plantfile import load_plant, save_plant
 from ..recordings import save_recording
-from . import envelope
 from .locate import moving_rms
 from .model import angle_residuals_deg, prepare, simulate
 from .proof_tables import DETECTABLE, loop_table, pair_table, summarize, table, targets  # noqa: F401
@@ -163,10 +162,6 @@ def score_heldout(row, res, held):
     row["heldout_rms_before"] = float(np.sqrt(np.mean(r0 ** 2)))
     row["heldout_rms_after"] = float(np.sqrt(np.mean(r1 ** 2)))
     row["heldout_noise"] = hd.recs[0].noise_deg                     # the tool's estimate from the held-out file
-    # ... and the final model's RMS on the held-out samples whose state the recording covered (envelope.py)
-    cov = envelope.from_recordings([rd.rec for rd in res.data.recs]).covered(held.t_s, held.angle_deg)
-    row["heldout_time_covered"] = float(np.mean(cov))
-    row["heldout_rms_after_covered"] = float(np.sqrt(np.mean(r1[cov] ** 2))) if cov.any() else None
 
 
 def run_case(family, seed, args, workdir):

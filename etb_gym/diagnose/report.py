@@ -14,7 +14,6 @@ from ..plantfile import save_plant
 from . import disturbance as D
 from . import locate as L
 from .candidates import CANDIDATES
-from .envelope import text as envelope_text
 from .model import angle_residuals_deg, simulate
 from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_mismatch
 
@@ -124,9 +123,9 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
     tab0, regs = _regimes(data, base, res0, model0)
     tab1, _ = _regimes(data, base, res1, (plant, sensor))
     before, after = _merge_tables(tab0), _merge_tables(tab1)
-    z0 = D.deciding_z(D.persistent_mismatch(data, *model0))   # a closed loop: current, steady motion
-    sig0 = significant_mismatch(data, res0, *model0, z_ref=z0)
-    sig1 = significant_mismatch(data, res1, plant, sensor, z_ref=z0)
+    ref0 = D.persistent_mismatch(data, *model0)   # a closed loop: current, steady motion (the yardstick)
+    sig0 = significant_mismatch(data, res0, *model0, ref=ref0)
+    sig1 = significant_mismatch(data, res1, plant, sensor, ref=ref0)
     windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg) for rd, r in zip(data.recs, res0)}
     effects = _effects(data, base, nominal, final, steps, res0, opts)
     quant = max(rd.resolution_deg for rd in data.recs)
@@ -333,8 +332,6 @@ def markdown(result, figures) -> str:
             lines += ["", "Observer residual: one-step prediction error, the model's angle pulled towards the measured "
                       f"angle after every sample (bandwidth {r['observer']['bandwidth_rad_s']:g} rad/s); the calibrated "
                       "plant itself is unchanged."]
-    if r.get("envelope"):
-        lines += ["", "## Where the twin is trustworthy", "", envelope_text(r["envelope"])]
     figures = list(figures) + [f for f in r.get("shape_figures", []) if f not in figures]
     lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
     lines += ["", f"The calibrated plant (with the effects that act on the plate) is `{r['calibrated_plant']}`: "

@@ -21,7 +21,6 @@ from .explain import Runner, select
 from .measurement import DEFAULT_RESOLUTION_DEG
 from .model import Data, SimulationFailed, Spec, angle_residuals_deg, prepare, replay_view, restart_view, simulate
 from . import disturbance as D
-from . import envelope
 from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_mismatch, significant_residual  # noqa: F401
 
 _significant_residual = significant_residual
@@ -276,14 +275,15 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         res0 = angle_residuals_deg(simulate(*spec0.build(nominal.x), data), data)
         lap("calibrate")
 
-        def persistent(fr: F.FitResult) -> float:     # a closed loop: current residual, steady motion (disturbance.py)
-            return D.deciding_z(D.persistent_mismatch(data, *fr.spec.build(fr.x)))
+        # a closed loop: current residual, steady motion (disturbance.py), every model's on the nominal's yardstick
+        ref0 = D.persistent_mismatch(data, *nominal.spec.build(nominal.x))
 
-        z0 = persistent(nominal)
+        def persistent(fr: F.FitResult) -> float:
+            return D.deciding_z(D.persistent_mismatch(data, *fr.spec.build(fr.x), ref=ref0))
 
         def significant(fr: F.FitResult) -> bool:
             model = fr.spec.build(fr.x)
-            return significant_mismatch(data, angle_residuals_deg(simulate(*model, data), data), *model, z_ref=z0)
+            return significant_mismatch(data, angle_residuals_deg(simulate(*model, data), data), *model, ref=ref0)
 
         sig0 = significant(nominal)
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
@@ -334,13 +334,12 @@ def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skippe
                              for rd in data.recs}
     # which residual each recording was calibrated, located and explained with (model.prepare, observer.py)
     result.report["residual"] = {rd.rec.name: rd.residual for rd in data.recs}
-    # where the twin has evidence: the states the recordings held and passed through (envelope.py)
-    result.report["envelope"] = envelope.from_recordings([rd.rec for rd in data.recs]).as_dict()
     if any(rd.residual == "observer" for rd in data.recs):
         # the persistent structure of the observer's residuals (disturbance.py): before and after
-        result.report["persistent_structure"] = {
-            "before": [s.as_dict() for s in D.persistent_mismatch(data, *nominal.spec.build(nominal.x))],
-            "after": [s.as_dict() for s in D.persistent_mismatch(data, plant, sensor)]}
+        ref0 = D.persistent_mismatch(data, *nominal.spec.build(nominal.x))
+        result.report["persistent_structure"] = {           # "after" on the nominal model's yardstick
+            "before": [s.as_dict() for s in ref0],
+            "after": [s.as_dict() for s in D.persistent_mismatch(data, plant, sensor, ref=ref0)]}
         from . import observer
         result.report["observer"] = {"bandwidth_rad_s": observer.OMEGA_O, "corrects": "angle"}
     if shaped is not None:
