@@ -123,9 +123,9 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
     tab0, regs = _regimes(data, base, res0, model0)
     tab1, _ = _regimes(data, base, res1, (plant, sensor))
     before, after = _merge_tables(tab0), _merge_tables(tab1)
-    ref0 = D.persistent_mismatch(data, *model0)   # a closed loop: current, steady motion (the yardstick)
-    sig0 = significant_mismatch(data, res0, *model0, ref=ref0)
-    sig1 = significant_mismatch(data, res1, plant, sensor, ref=ref0)
+    z0 = D.deciding_z(D.persistent_mismatch(data, *model0))   # a closed loop: current, steady motion
+    sig0 = significant_mismatch(data, res0, *model0, z_ref=z0)
+    sig1 = significant_mismatch(data, res1, plant, sensor, z_ref=z0)
     windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg) for rd, r in zip(data.recs, res0)}
     effects = _effects(data, base, nominal, final, steps, res0, opts)
     quant = max(rd.resolution_deg for rd in data.recs)

@@ -275,15 +275,14 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         res0 = angle_residuals_deg(simulate(*spec0.build(nominal.x), data), data)
         lap("calibrate")
 
-        # a closed loop: current residual, steady motion (disturbance.py), every model's on the nominal's yardstick
-        ref0 = D.persistent_mismatch(data, *nominal.spec.build(nominal.x))
+        def persistent(fr: F.FitResult) -> float:     # a closed loop: current residual, steady motion (disturbance.py)
+            return D.deciding_z(D.persistent_mismatch(data, *fr.spec.build(fr.x)))
 
-        def persistent(fr: F.FitResult) -> float:
-            return D.deciding_z(D.persistent_mismatch(data, *fr.spec.build(fr.x), ref=ref0))
+        z0 = persistent(nominal)
 
         def significant(fr: F.FitResult) -> bool:
             model = fr.spec.build(fr.x)
-            return significant_mismatch(data, angle_residuals_deg(simulate(*model, data), data), *model, ref=ref0)
+            return significant_mismatch(data, angle_residuals_deg(simulate(*model, data), data), *model, z_ref=z0)
 
         sig0 = significant(nominal)
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
@@ -336,10 +335,9 @@ def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skippe
     result.report["residual"] = {rd.rec.name: rd.residual for rd in data.recs}
     if any(rd.residual == "observer" for rd in data.recs):
         # the persistent structure of the observer's residuals (disturbance.py): before and after
-        ref0 = D.persistent_mismatch(data, *nominal.spec.build(nominal.x))
-        result.report["persistent_structure"] = {           # "after" on the nominal model's yardstick
-            "before": [s.as_dict() for s in ref0],
-            "after": [s.as_dict() for s in D.persistent_mismatch(data, plant, sensor, ref=ref0)]}
+        result.report["persistent_structure"] = {
+            "before": [s.as_dict() for s in D.persistent_mismatch(data, *nominal.spec.build(nominal.x))],
+            "after": [s.as_dict() for s in D.persistent_mismatch(data, plant, sensor)]}
         from . import observer
         result.report["observer"] = {"bandwidth_rad_s": observer.OMEGA_O, "corrects": "angle"}
     if shaped is not None:
