@@ -5,7 +5,7 @@ balance there for a few milliseconds, mixed with inertia and friction; where the
 static balance (spring, friction, angle-dependent torques against the motor's torque) directly. A held-out
 recording that holds the plate at an angle the training recordings only passed through tests the twin outside its
 evidence. scripts/twin_coverage.py uses this to ask whether the twin's held-out error sits outside the
-training's states; measured on 9 survey cases it does not (docs/diagnosis.md, "Why twins miss held-out
+training's states; measured on 11 survey cases it does not (docs/diagnosis.md, "Why twins miss held-out
 recordings"), so the envelope is a measuring tool and is not written into the report.
 
 The envelope is the time the training recordings spent per angle bin, split by motion: ``held`` (the measured
