@@ -332,6 +332,12 @@ def markdown(result, figures) -> str:
             lines += ["", "Observer residual: one-step prediction error, the model's angle pulled towards the measured "
                       f"angle after every sample (bandwidth {r['observer']['bandwidth_rad_s']:g} rad/s); the calibrated "
                       "plant itself is unchanged."]
+    if r.get("twin_replay"):
+        lines += ["", "Twin check on closed-loop recordings (the exported twin replays the recorded voltage open loop; "
+                  "a twin that predicts other excitations well stays near the noise): "
+                  + ", ".join(f"`{k}` " + (f"{v['rms_deg']:.4f} deg ({v['over_noise']:.1f}x the noise floor)"
+                                           if v["rms_deg"] is not None else "the simulation failed")
+                              for k, v in r["twin_replay"].items()) + "."]
     figures = list(figures) + [f for f in r.get("shape_figures", []) if f not in figures]
     lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
     lines += ["", f"The calibrated plant (with the effects that act on the plate) is `{r['calibrated_plant']}`: "

@@ -163,6 +163,25 @@ POLISH_NFEV = 15     # evaluations of the last fit on the scoring residual (cont
 POLISH_MAX_PARAMS = 8     # a model with more (a shape map from refine.py) keeps its fit: the polish would cost too much
 
 
+def twin_replay(result, data: Data) -> None:
+    """report.json ``twin_replay``: on each closed-loop recording (observer residual) the exported twin's replay
+    of the recorded voltage, open loop, as RMS and over the noise floor. The observer residual does not show how
+    far the twin drifts on its own; this replay does, and it is about the size of the twin's miss on other
+    excitations (docs/diagnosis.md, "Why twins miss held-out recordings")."""
+    obs = [i for i, rd in enumerate(data.recs) if rd.residual == "observer"]
+    if not obs:
+        return
+    rv = replay_view(data)
+    pred = simulate(result.plant, result.sensor, rv)
+    if pred is None:                    # the twin cannot replay the recording: said, not hidden
+        result.report["twin_replay"] = {data.recs[i].rec.name: {"rms_deg": None, "over_noise": None} for i in obs}
+        return
+    res = angle_residuals_deg(pred, rv)
+    result.report["twin_replay"] = {data.recs[i].rec.name: {"rms_deg": _rms([res[i]]),
+                                                            "over_noise": _rms([res[i]]) / data.recs[i].noise_deg}
+                                    for i in obs}
+
+
 def polish(fr: F.FitResult, data: Data) -> F.FitResult:
     """``fr`` (fitted on the restart view: every segment restarted at the readings) refitted for a few
     evaluations on the scoring residual, where the replay goes on from the model's own state (model.restart_weight).
@@ -327,6 +346,7 @@ def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skippe
             print(f"  the twin keeps the diagnosis's integrator step ({n_twin} substeps): the probe failed ({e})")
     result.plant = plant.replace(substeps=n_twin)
     result.report["twin_substeps"] = n_twin
+    twin_replay(result, data)
     lap("twin_step")
     result.report["skipped_candidates"] = skipped       # [{id, round, reason}]: could not be simulated
     from .model import LOOP_Z
