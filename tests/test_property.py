@@ -21,6 +21,7 @@ What must hold, with the bounds derived from the equations (docs/model.md):
 import importlib
 import math
 
+import numba
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
@@ -173,13 +174,15 @@ def test_batched_randomized_parameters_stay_physical(model, seed, switching):
     traj = np.empty((N_STEPS + 1, N, p.n_states))
     traj[0] = X
     duty = np.repeat(rng.choice([-1.0, 1.0], (N_STEPS // 10 + 1, N)), 10, axis=0)[:N_STEPS]
-    for k in range(N_STEPS):
-        # on the calling thread: batch_step_serial runs the parallel batch step's control_step_group /
-        # control_step_dx per plant (tests/test_fast_path.py checks the parallel one equal to single steps on
-        # 3B); the parallel batch step compiled for each model drawn here was ~3 s of CPU each, for this test alone
-        ok = p.step_batch(X, duty[k], V, P, np.full(N, k * p.control_period_s), aux, parallel=False)
-        assert ok.all()
-        traj[k + 1] = X
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)   # correctness only; thread launches on a busy 2-core box cost ~10 ms a call
+    try:
+        for k in range(N_STEPS):
+            ok = p.step_batch(X, duty[k], V, P, np.full(N, k * p.control_period_s), aux)
+            assert ok.all()
+            traj[k + 1] = X
+    finally:
+        numba.set_num_threads(threads)
     for b, q in enumerate(plants):
         np.testing.assert_array_equal(P[b], q.P)      # param_vector == the rebuilt plant's parameters
         tr = Trajectory(np.arange(N_STEPS + 1) * q.control_period_s, traj[:, b], np.r_[np.nan, duty[:, b]],
