@@ -4,6 +4,9 @@ import math
 
 import numpy as np
 import pytest
+from diagnose_stubs import Alt as _Alt
+from diagnose_stubs import Cur as _Cur
+from diagnose_stubs import generic as _stub_generic
 
 from etb_gym import make_plant
 from etb_gym.components import effects as fx
@@ -59,25 +62,6 @@ def test_rivals_are_group_members_close_to_the_leader_with_another_table():
     assert D.rivals(screened[:1] + screened[2:3], 100.0, "airflow_torque") == []
 
 
-def _generic(heldout, terms, periodic=False):
-    from etb_gym.diagnose.unmodelled import Generic
-    shape = {"significant_terms": terms, "angle": {"periodic": periodic, "period_deg": 20.0 if periodic else None}}
-    return Generic(None, [], [], heldout, {}, {t: 1.0 for t in terms}, 0.01, shape)
-
-
-class _Spec:
-    candidates = ()
-
-
-class _Cur:
-    spec = _Spec()
-    x = np.zeros(3)
-
-
-class _Alt(_Cur):
-    x = np.zeros(4)
-
-
 @pytest.mark.parametrize("h_table, significant, periodic, rms_alt, expect", [
     (1.05, True, False, 0.5, "angle_dependent_friction"),   # one table does the four tables' job (within 10 %)
     (2.0, False, False, 0.5, "angle_dependent_friction"),   # ... or leaves nothing significant
@@ -101,7 +85,7 @@ def test_a_catalogue_family_with_its_table_wins_over_generic_tables_of_its_kind(
     monkeypatch.setattr(U, "_try_family", fake_try)
     monkeypatch.setattr(U, "_rms_deg", lambda spec, x, data: 1.0 if x is _Cur.x else rms_alt)
     fam = {"unmodelled_angle": ("airflow_torque", "angle_dependent_friction"), "unmodelled_voltage": ("supply_drop",)}
-    alt = U.catalogue_alternative(_generic(1.0, ["unmodelled_angle", "unmodelled_voltage"], periodic), _Cur(), fam,
+    alt = U.catalogue_alternative(_stub_generic(["unmodelled_angle", "unmodelled_voltage"], 1.0, periodic), _Cur(), fam,
                                   None, lambda fr: significant, log=lambda *a: None)
     assert (alt.id if alt else None) == expect
     assert tried == ([] if periodic else ["airflow_torque", "angle_dependent_friction"])   # the main table's families
@@ -159,6 +143,6 @@ def test_a_family_whose_own_angle_table_is_periodic_is_no_alternative(monkeypatc
                                                   "torque_Nm": list(0.01 * np.sin(2 * np.pi * grid / np.radians(20.0)))}})()
     monkeypatch.setattr(U, "_try_family", lambda cur, cid, data, log: U.FamilyAlternative(cid, _Alt(), ref, 1.0, 1.0))
     monkeypatch.setattr(U, "_rms_deg", lambda spec, x, data: 1.0 if x is _Cur.x else 0.5)
-    alt = U.catalogue_alternative(_generic(1.0, ["unmodelled_angle"]), _Cur(), {"unmodelled_angle": ("airflow_torque",)},
+    alt = U.catalogue_alternative(_stub_generic(["unmodelled_angle"], 1.0), _Cur(), {"unmodelled_angle": ("airflow_torque",)},
                                   None, lambda fr: False, log=lambda *a: None)
     assert alt is None

@@ -4,25 +4,11 @@ generic table matters when the loop holds the angle, and of the probe for a ripp
 current. No simulation: the fits are stand-ins."""
 import numpy as np
 
+from diagnose_stubs import Alt as _Alt
+from diagnose_stubs import Cur as _Cur
+from diagnose_stubs import generic as _stub_generic
+
 from etb_gym.diagnose import unmodelled as U
-
-
-class _Spec:
-    candidates = ()
-
-
-class _Cur:
-    spec = _Spec()
-    x = np.zeros(3)
-
-
-class _Alt(_Cur):
-    x = np.zeros(4)
-
-
-def _generic(terms):
-    shape = {"significant_terms": terms, "angle": {"periodic": False, "period_deg": None}}
-    return U.Generic(None, [], [], 1.0, {}, {t: 1.0 for t in terms}, 0.01, shape)
 
 
 def test_a_family_that_accounts_for_the_closed_loops_structure_is_named(monkeypatch):
@@ -36,7 +22,7 @@ def test_a_family_that_accounts_for_the_closed_loops_structure_is_named(monkeypa
     fam = {"unmodelled_angle": ("airflow_torque",)}
 
     def alt(resolves):
-        return U.catalogue_alternative(_generic(["unmodelled_angle"]), _Cur(), fam, None, lambda fr: True,
+        return U.catalogue_alternative(_stub_generic(["unmodelled_angle"]), _Cur(), fam, None, lambda fr: True,
                                        log=lambda *a: None, resolves=resolves)
     assert alt(None) is None                       # open loop: the held-out and RMS rules alone decide
     assert alt(lambda fr: False) is None           # the structure stays
