@@ -116,14 +116,17 @@ def _unexplained(data, res1, tab1) -> list:
     return unexplained
 
 
-def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor, opts, elapsed):
+def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor, opts, elapsed, ref0=None):
+    """The Result and its report.json dict. ``ref0``: the nominal model's closed-loop Structures
+    (disturbance.persistent_mismatch; computed here if None), the yardstick of every significance test."""
 
     names = [r.name for r in recs]
     model0 = nominal.spec.build(nominal.x)
     tab0, regs = _regimes(data, base, res0, model0)
     tab1, _ = _regimes(data, base, res1, (plant, sensor))
     before, after = _merge_tables(tab0), _merge_tables(tab1)
-    ref0 = D.persistent_mismatch(data, *model0)   # a closed loop: current, steady motion (the yardstick)
+    if ref0 is None:                              # a closed loop: current, steady motion (the yardstick)
+        ref0 = D.persistent_mismatch(data, *model0)
     sig0 = significant_mismatch(data, res0, *model0, ref=ref0)
     sig1 = significant_mismatch(data, res1, plant, sensor, ref=ref0)
     windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg) for rd, r in zip(data.recs, res0)}

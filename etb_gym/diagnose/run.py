@@ -325,17 +325,20 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         runner.close()
         bar.close()
     return _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skipped, shaped, out, lap, stages,
-                   cpu0)
+                   cpu0, ref0)
 
 
 def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skipped, shaped, out, lap, stages,
-            cpu0=None):
-    """The result and its report (written to ``out`` if given); ``elapsed_breakdown_s`` gets the report stage."""
+            cpu0=None, ref0=None):
+    """The result and its report (written to ``out`` if given); ``elapsed_breakdown_s`` gets the report stage.
+    ``ref0``: the nominal model's closed-loop Structures (computed here if None)."""
     plant, sensor = final.spec.build(final.x)
     res1 = angle_residuals_deg(simulate(plant, sensor, data), data)
+    if ref0 is None:
+        ref0 = D.persistent_mismatch(data, *nominal.spec.build(nominal.x))
     from .report import assemble
     result = assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor, opts,
-                      time.perf_counter() - t_start)
+                      time.perf_counter() - t_start, ref0=ref0)
     lap("report")
     # the exported twin (result.plant, calibrated_plant.toml) gets a step fine enough for other excitations too
     try:
@@ -356,7 +359,6 @@ def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skippe
     result.report["residual"] = {rd.rec.name: rd.residual for rd in data.recs}
     if any(rd.residual == "observer" for rd in data.recs):
         # the persistent structure of the observer's residuals (disturbance.py): before and after
-        ref0 = D.persistent_mismatch(data, *nominal.spec.build(nominal.x))
         result.report["persistent_structure"] = {           # "after" on the nominal model's yardstick
             "before": [s.as_dict() for s in ref0],
             "after": [s.as_dict() for s in D.persistent_mismatch(data, plant, sensor, ref=ref0)]}
