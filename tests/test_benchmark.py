@@ -195,3 +195,30 @@ def test_tracking_cells_reported_against_their_own_bound(tmp_path):
     t4 = [t for t in bench_report.check_targets(rows, tb) if t[2] == "T4"][0]
     assert not t4[5] and "ramp_10_80/supply_9V 1.50x" in t4[4]           # 0.08 > 1.3 x 0.05: still a miss
     assert "noise-free bound" not in bench_report.markdown(rows)       # without bounds: the old report
+
+
+def test_tracking_bound_search_starts_from_the_controllers_run_and_its_gradient_is_exact():
+    """scripts/ramp_bound.py: the controller's duty replayed from its own state where the ramp starts scores
+    exactly the env's RMS (so the bound found from it is never above the controller), and the gradient of the
+    restarted runs equals a central difference of whole runs."""
+    import numpy as np
+
+    from scripts_loader import load_script
+
+    rb = load_script("ramp_bound")
+    duty, ref, rms_env, X = rb.controller_run("ETB-3B-v0", "pid-plain", "ramp_10_80", "nominal", 0)
+    k_start = int(np.nonzero(np.abs(ref - ref[0]) > 1e-9)[0][0]) - 1
+    pr = rb.TrackingProblem("ETB-3B-v0", "ramp_10_80", "nominal", ref, float("nan"), X[k_start])
+    assert pr.k_start == k_start == 300 and pr.n_scored == 701
+    assert pr.rms(duty[k_start:]) == pytest.approx(rms_env, rel=1e-9)
+    pr.base = duty[k_start:pr.k_start + pr.n].copy()
+    pr.set_knots(50.0)
+    z = np.full(len(pr.knots), 0.01)
+    f, g = pr.cost_grad(z)
+    assert f == pytest.approx(pr.rms(pr.duty(z)) ** 2, rel=1e-9)
+    for j in (0, 5):
+        zp, zm = z.copy(), z.copy()
+        zp[j] += 1e-4
+        zm[j] -= 1e-4
+        fd = (pr.rms(pr.duty(zp)) ** 2 - pr.rms(pr.duty(zm)) ** 2) / 2e-4
+        assert g[j] == pytest.approx(fd, rel=0.05, abs=1e-4 * max(1.0, abs(fd)))
