@@ -161,6 +161,11 @@ def read_tracking_bounds(path=None) -> dict:
             env, sc, var, seed = r["env"], r["scenario"], r["variant"], int(r.get("reference_seed", 0))
             if sc in SCENARIOS and var in VARIANTS and r.get("fingerprint") == tracking_fingerprint(env, sc, var, seed):
                 out[tracking_key(env, sc, var, seed)] = float(r["bound_rms_deg"])
+                # a variant on the same plant (the noisy sensor: the bound is noise-free) shares the bound
+                for other in VARIANTS:
+                    k = tracking_key(env, sc, other, seed)
+                    if k not in out and tracking_fingerprint(env, sc, other, seed) == r["fingerprint"]:
+                        out[k] = float(r["bound_rms_deg"])
         except (KeyError, TypeError, ValueError):
             continue
     return out

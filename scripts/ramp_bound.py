@@ -263,8 +263,9 @@ def main(argv=None):
     ap.add_argument("--controller", default="ptos", help="controller whose duty starts the search (default ptos)")
     ap.add_argument("--start-seeds", type=int, default=1,
                     help="ramps: the controller's runs of seeds 0..N-1 are the starts (default 1)")
-    ap.add_argument("--preloads", type=float, nargs="+", default=list(PRELOADS),
-                    help="start currents, fractions of the static band towards the move (default 0 0.95)")
+    ap.add_argument("--preloads", type=float, nargs="*", default=list(PRELOADS),
+                    help="start currents from rest, fractions of the static band towards the move (default 0 0.95; "
+                         "none given: only the controller's own state)")
     ap.add_argument("--knot-ms", type=float, default=5.0, help="knot spacing of the correction (ms, default 5)")
     ap.add_argument("--iterations", type=int, default=30, help="L-BFGS-B iterations per start (default 30)")
     ap.add_argument("--refine-knot-ms", type=float, default=2.0, help="knot spacing of the refinement (0 = none)")

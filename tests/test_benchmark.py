@@ -185,6 +185,7 @@ def test_tracking_cells_reported_against_their_own_bound(tmp_path):
     path.write_text(json.dumps(entries))
     tb = read_tracking_bounds(path)
     assert tb == {tracking_key(env, "ramp_10_80", "nominal", 0): 0.05,
+                  tracking_key(env, "ramp_10_80", "sensor_noise_high", 0): 0.05,    # same plant, noise-free bound
                   tracking_key(env, "ramp_10_80", "supply_9V", 5): 0.075}     # a ramp has one bound for all seeds
     assert read_tracking_bounds(tmp_path / "missing.json") == {}
     rows = [row("ramp_10_80", "nominal", 0, 0.05), row("ramp_10_80", "supply_9V", 0, 0.08),
