@@ -20,8 +20,8 @@ outside the searched family was tried, so the true optimum can only be lower):
 2. scipy L-BFGS-B with box constraints on the knots ([-2, 2]); the gradient by one-sided differences
    (1e-4), each knot's simulation restarted from the base trajectory's state at the knot before it (a knot
    moves the duty only from there on), until ``--iterations``;
-3. the best result is refined on knots ``--refine-knot-ms`` apart (default 2 ms, 0 = no refinement) for
-   ``--refine-iterations``.
+3. the best result is refined on knots ``--refine-knot-ms`` apart (default 2 ms; several values: successive
+   refinements, e.g. ``2 1``) for ``--refine-iterations`` each.
 
 For the pedal the reference's later moves are known to the search from the start (a causal controller sees
 each tip-in only when it begins), so that bound is optimistic in information and pessimistic by search.
@@ -224,12 +224,15 @@ def solve(env_id, scenario, variant, seed, args):
             best = (rms, d, pr)
         evals += pr.evals
     rms, d, pr = best
-    n_it = 0
-    if args.refine_knot_ms > 0:
+    n_it, stages = 0, []
+    for knot_ms in args.refine_knot_ms:
         pr.evals = 0
-        d2, n_it = pr.solve(d, args.refine_knot_ms, args.refine_iterations)
+        d2, nit = pr.solve(d, knot_ms, args.refine_iterations)
+        n_it += nit
         evals += pr.evals
         rms2 = pr.rms(d2)
+        stages.append({"knot_ms": knot_ms, "iterations": nit, "rms_deg": rms2})
+        print(f"    refined on {knot_ms:g} ms knots: {rms2:.4f} deg ({nit} it.)", flush=True)
         if rms2 < rms:
             rms, d = rms2, d2
     phi = pr.angle(d)
@@ -248,7 +251,8 @@ def solve(env_id, scenario, variant, seed, args):
             "bound_start": "controller state" if math.isnan(pr.preload) else f"rest, preload {pr.preload:g}",
             "bound_saturated_fraction": float(np.mean(np.abs(d) > 0.999)),
             "starts": starts, "knot_ms": args.knot_ms, "iterations": args.iterations,
-            "refine_knot_ms": args.refine_knot_ms, "refine_iterations": n_it, "simulations": evals,
+            "refine_knot_ms": args.refine_knot_ms, "refine_iterations": n_it, "refine_stages": stages,
+            "simulations": evals,
             "solve_s": time.perf_counter() - t0}
 
 
@@ -268,15 +272,17 @@ def main(argv=None):
                          "none given: only the controller's own state)")
     ap.add_argument("--knot-ms", type=float, default=5.0, help="knot spacing of the correction (ms, default 5)")
     ap.add_argument("--iterations", type=int, default=30, help="L-BFGS-B iterations per start (default 30)")
-    ap.add_argument("--refine-knot-ms", type=float, default=2.0, help="knot spacing of the refinement (0 = none)")
+    ap.add_argument("--refine-knot-ms", type=float, nargs="*", default=[2.0],
+                    help="knot spacings of successive refinements of the best start (ms, default 2; none = no "
+                         "refinement)")
     ap.add_argument("--refine-iterations", type=int, default=20)
     ap.add_argument("--json", type=Path, help="merge the results into this JSON file (by env, scenario, variant, "
                                               "seed)")
     args = ap.parse_args(argv)
     if args.knot_ms <= 0:
         ap.error(f"--knot-ms = {args.knot_ms}: expected a positive spacing in ms")
-    if args.refine_knot_ms < 0:
-        ap.error(f"--refine-knot-ms = {args.refine_knot_ms}: expected a spacing >= 0 ms")
+    if any(k <= 0 for k in args.refine_knot_ms):
+        ap.error(f"--refine-knot-ms {args.refine_knot_ms}: expected positive spacings in ms")
     if args.start_seeds < 1:
         ap.error(f"--start-seeds = {args.start_seeds}: expected at least 1")
     if any(not 0.0 <= p <= 1.0 for p in args.preloads):
