@@ -103,7 +103,7 @@ def _above_bound_note(tb, env, c, agg):
         return ""
     note = f"; RMS / own noise-free bound {min(ratios):.2f}-{max(ratios):.2f}x over {len(ratios)} cells"
     if hard:
-        note += ", own bound > 1.3x the nominal bound (an input at the bound misses the rule): " + ", ".join(sorted(hard))
+        note += ", own bound (found by search) > 1.3x the nominal bound: " + ", ".join(sorted(hard))
     return note
 
 

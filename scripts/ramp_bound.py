@@ -3,10 +3,12 @@ plant), and a lower bound on it from the start of the first move.
 
 For a tracking scenario (``ramp_10_80``, ``ramp_80_10``, ``pedal``: the reference as the env shows it for the
 seed, read from a controller's run) and plant variants (their parameters and battery; the sensor does not
-matter): the plate starts at rest at the reference's first value, at the last sample before the reference
-first moves, with the coil current anywhere in the band static friction holds (``--preloads``: fractions of
-the way from the spring-balancing current to the band's edge, towards the first move -- what a controller can
-leave there during the hold without knowing when the move comes). The input is the H-bridge duty per control
+matter): the plate starts at the last sample before the reference first moves, either in the controller's own
+state there (its run's duty replayed on the plant from the env's initial state, which reproduces the env's
+true angle exactly: checked) or at rest at the reference's first value with the coil current anywhere in the
+band static friction holds (``--preloads``: fractions of the way from the spring-balancing current to the
+band's edge, towards the first move -- what a controller can leave there during the hold without knowing when
+the move comes). The input is the H-bridge duty per control
 period, |d| <= 1 at the variant's battery voltage; the cost is the benchmark's ``rms_error_deg`` (RMS of
 r - phi over the samples from the end of the 0.3 s hold to the scenario's end) on the true, noise-free angle.
 
@@ -14,9 +16,10 @@ r - phi over the samples from the end of the 0.3 s hold to the scenario's end) o
 outside the searched family was tried, so the true optimum can only be lower):
 
 1. the duty is a start input plus a correction that is piecewise linear between knots every ``--knot-ms``
-   (default 5 ms), clipped to [-1, 1]; start inputs (``--starts``): a controller's duty through the env
-   with the benchmark's sensor noise (default ``ptos``, seeds 0..``--start-seeds``-1: it carries the fine
-   switching structure of a real landing), once per preload;
+   (default 5 ms), clipped to [-1, 1]; start inputs: a controller's duty through the env with the
+   benchmark's sensor noise (``--controller``, default ``ptos``; for ramps seeds 0..``--start-seeds``-1: it
+   carries the fine switching structure of a real landing), once from the controller's own state and once per
+   preload (from its own state the start scores the controller's RMS, so the result is never above it);
 2. scipy L-BFGS-B with box constraints on the knots ([-2, 2]); the gradient by one-sided differences
    (1e-4), each knot's simulation restarted from the base trajectory's state at the knot before it (a knot
    moves the duty only from there on), until ``--iterations``;
@@ -32,13 +35,17 @@ every sample of the first few milliseconds (checked: no input the search tried, 
 it before it first reaches the reference); until it reaches the reference, no admissible input can have a
 smaller error at a sample than r - phi_full_drive. The sum of those squares over the scored samples, over the
 scored sample count, is a lower bound on any input's mean square error (everything after that first
-crossing is counted as zero). It holds for any causal or non-causal controller on this plant and start.
+crossing is counted as zero). It holds for any causal or non-causal controller on this plant from a plate at
+rest at the move (``ahead_of_full_drive_deg`` of each start records how far its result got ahead of full
+drive before the crossing: negative in every committed run, the controller's own start included).
 
 The script also prints the steady-state voltage a ramp's speed needs at each angle on the nominal model
 (u = R (T_spring + T_c + b w) / k + k w): where it exceeds the battery the plate cannot follow the ramp.
 
     python scripts/ramp_bound.py                                   # ramp_10_80, nominal and supply_9V
-    python scripts/ramp_bound.py --scenario pedal --variants nominal supply_9V coil_125C --json out.json
+    # the committed ramp cells (one command per line):
+    python scripts/ramp_bound.py --variants nominal supply_9V coil_125C --preloads --iterations 80 --refine-knot-ms 2 1 --refine-iterations 60 --json baselines/benchmark/ramp_bound.json
+    python scripts/ramp_bound.py --scenario pedal --variants nominal supply_9V --preloads --iterations 60 --refine-iterations 40 --json out.json
 """
 from __future__ import annotations
 
