@@ -27,7 +27,9 @@ issue's targets marked pass/FAIL.
 
 Outputs in --out: results.csv (one row per run, rewritten atomically after every run), results.md (the
 table), response_<env>_<scenario>.png (nominal plant, first seed, with the bound's trajectory), traces/*.npz
-(those runs' traces), bounds.json (the physical bounds, reused when their fingerprint matches).
+(those runs' traces), bounds.json (the physical bounds, reused when their fingerprint matches). The tracking
+cells are also reported against their own noise-free bound from --tracking-bounds (scripts/ramp_bound.py's
+JSON; default the committed baselines/benchmark/ramp_bound.json), for the entries whose fingerprint matches.
 """
 
 
@@ -57,6 +59,9 @@ def parse_args(argv=None):
     p.add_argument("--resume", action="store_true", help="keep the rows in OUT/results.csv and run only the missing ones")
     p.add_argument("--force", action="store_true",
                    help="replace an existing OUT/results.csv (default: refuse unless --resume, so no result is lost)")
+    p.add_argument("--tracking-bounds", metavar="JSON", default=None,
+                   help="tracking bounds of scripts/ramp_bound.py (default: the committed "
+                        "baselines/benchmark/ramp_bound.json when present; 'none' = leave them out)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG response plots")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no table on stdout")
     a = p.parse_args(argv)
@@ -66,6 +71,9 @@ def parse_args(argv=None):
         bad = [n for n in names or [] if n not in valid]
         if bad:
             p.error(f"unknown {kind}(s) {bad}: valid are {', '.join(valid)}")
+    if a.tracking_bounds not in (None, "none") and not Path(a.tracking_bounds).is_file():
+        p.error(f"--tracking-bounds {a.tracking_bounds}: no such file: expected the JSON of scripts/ramp_bound.py "
+                "or 'none'")
     if a.workers < 1:
         p.error(f"--workers {a.workers}: expected at least 1")
     if a.seeds is not None and a.seeds < 1:
@@ -125,7 +133,11 @@ def main(argv=None) -> int:
         return 2
     keys = {j.key for j in jobs}
     rows = [r for r in rows if (r["env"], r["controller"], r["scenario"], r["variant"], str(r["seed"])) in keys]
-    md = bench_report.markdown(rows, title=f"Controller benchmark: {', '.join(controllers)} on {a.env}")
+    from etb_gym.bench_bounds import read_tracking_bounds
+
+    tb = {} if a.tracking_bounds == "none" else read_tracking_bounds(a.tracking_bounds)
+    md = bench_report.markdown(rows, title=f"Controller benchmark: {', '.join(controllers)} on {a.env}",
+                               tracking_bounds=tb)
     bench_report.write_text(out / "results.md", md)
     if not a.no_plots:
         bench_report.plot_scenarios(out, rows)

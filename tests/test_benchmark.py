@@ -158,3 +158,68 @@ def test_a_ratio_of_exactly_two_is_within_the_grid_target():
     t3 = lambda rows: [t for t in bench_report.check_targets(rows) if t[2] == "T3"][0]  # noqa: E731
     assert t3([row("nominal", 0.004, 0.003), row("friction_-50", 0.306 - 0.3, 0.003)])[5]
     assert not t3([row("nominal", 0.004, 0.003), row("friction_-50", 0.307 - 0.3, 0.003)])[5]
+
+
+def test_tracking_cells_reported_against_their_own_bound(tmp_path):
+    """The report's tracking cells carry RMS / own bound from a scripts/ramp_bound.py file; an entry whose
+    fingerprint no longer matches (another plant, reference or method) is dropped, an own bound above 1.3x the
+    nominal one is named in T4's text, and T4's pass/fail stays the 1.3x-nominal rule."""
+    import json
+
+    from etb_gym.bench_bounds import read_tracking_bounds, tracking_fingerprint, tracking_key
+    from etb_gym.bench_results import CSV_COLUMNS, TEXT_COLUMNS
+
+    def row(scenario, variant, seed, rms):
+        r = {c: float("nan") for c in CSV_COLUMNS[5:] if c not in TEXT_COLUMNS}
+        r.update(env="ETB-3B-v0", controller="x", scenario=scenario, variant=variant, seed=seed, stable=True,
+                 steady_state_error_deg=0.01, limit_cycle_deg=0.005, rms_error_deg=rms)
+        return r
+
+    env = "ETB-3B-v0"
+    entries = [{"env": env, "scenario": "ramp_10_80", "variant": v, "reference_seed": 0, "bound_rms_deg": b,
+                "fingerprint": tracking_fingerprint(env, "ramp_10_80", v, 0)}
+               for v, b in (("nominal", 0.05), ("supply_9V", 0.075))]
+    entries.append({"env": env, "scenario": "pedal", "variant": "nominal", "reference_seed": 0, "bound_rms_deg": 0.1,
+                    "fingerprint": tracking_fingerprint(env, "pedal", "nominal", 1)})     # another seed's reference
+    path = tmp_path / "ramp_bound.json"
+    path.write_text(json.dumps(entries))
+    tb = read_tracking_bounds(path)
+    assert tb == {tracking_key(env, "ramp_10_80", "nominal", 0): 0.05,
+                  tracking_key(env, "ramp_10_80", "sensor_noise_high", 0): 0.05,    # same plant, noise-free bound
+                  tracking_key(env, "ramp_10_80", "supply_9V", 5): 0.075}     # a ramp has one bound for all seeds
+    assert read_tracking_bounds(tmp_path / "missing.json") == {}
+    rows = [row("ramp_10_80", "nominal", 0, 0.05), row("ramp_10_80", "supply_9V", 0, 0.08),
+            row("pedal", "nominal", 0, 0.1), row("pedal", "supply_9V", 0, 0.12)]
+    md = bench_report.markdown(rows, tracking_bounds=tb)
+    assert "| 0.08 / 1.07x |" in md                                     # grid cell: RMS / own bound
+    assert "| ETB-3B-v0 | ramp_10_80 | supply_9V | 0.0750 | 1.50x | 1.07x |" in md
+    t4 = [t for t in bench_report.check_targets(rows, tb) if t[2] == "T4"][0]
+    assert not t4[5] and "ramp_10_80/supply_9V 1.50x" in t4[4]           # 0.08 > 1.3 x 0.05: still a miss
+    assert "noise-free bound" not in bench_report.markdown(rows)       # without bounds: the old report
+
+
+def test_tracking_bound_search_starts_from_the_controllers_run_and_its_gradient_is_exact():
+    """scripts/ramp_bound.py: the controller's duty replayed from its own state where the ramp starts scores
+    exactly the env's RMS (so the bound found from it is never above the controller), and the gradient of the
+    restarted runs equals a central difference of whole runs."""
+    import numpy as np
+
+    from scripts_loader import load_script
+
+    rb = load_script("ramp_bound")
+    duty, ref, rms_env, X = rb.controller_run("ETB-3B-v0", "pid-plain", "ramp_10_80", "nominal", 0)
+    k_start = int(np.nonzero(np.abs(ref - ref[0]) > 1e-9)[0][0]) - 1
+    pr = rb.TrackingProblem("ETB-3B-v0", "ramp_10_80", "nominal", ref, float("nan"), X[k_start])
+    assert pr.k_start == k_start == 300 and pr.n_scored == 701
+    assert pr.rms(duty[k_start:]) == pytest.approx(rms_env, rel=1e-9)
+    pr.base = duty[k_start:pr.k_start + pr.n].copy()
+    pr.set_knots(50.0)
+    z = np.full(len(pr.knots), 0.01)
+    f, g = pr.cost_grad(z)
+    assert f == pytest.approx(pr.rms(pr.duty(z)) ** 2, rel=1e-9)
+    for j in (0, 5):
+        zp, zm = z.copy(), z.copy()
+        zp[j] += 1e-4
+        zm[j] -= 1e-4
+        fd = (pr.rms(pr.duty(zp)) ** 2 - pr.rms(pr.duty(zm)) ** 2) / 2e-4
+        assert g[j] == pytest.approx(fd, rel=0.05, abs=1e-4 * max(1.0, abs(fd)))
