@@ -232,3 +232,47 @@ def test_the_stop_knots_of_a_table_are_not_read_as_the_torque():
     m = identified(grid, data)
     assert not m[0] and not m[-1]                   # the stops, 500 samples each
     assert m[1:6].all() and not m[7:].any()         # visited inside the stroke / never reached
+
+
+def test_stretches_run_from_hold_to_hold_and_short_ones_merge():
+    """envelope.stretch_index: a new stretch starts in the middle of each hold that lies at least min_len_s after
+    the last start; a hold shorter than min_hold_s (a twitch) or too close to the last start splits nothing."""
+    from etb_gym.diagnose.envelope import stretch_index
+    dt = 1e-3
+    pieces = [np.full(300, 10.0), np.linspace(10, 40, 200), np.full(400, 40.0), np.linspace(40, 20, 100),
+              np.full(30, 20.0), np.linspace(20, 60, 200), np.full(100, 60.0), np.linspace(60, 62, 50),
+              np.full(300, 62.0)]
+    a = np.concatenate(pieces)
+    t = np.arange(a.size) * dt
+    idx = stretch_index(t, a, min_len_s=0.5)
+    starts = t[np.flatnonzero(np.diff(idx)) + 1]
+    # holds at 40 deg (0.5-0.9 s), 60 deg (1.23-1.33 s: 0.5 s after 0.7, so it splits) and 62 deg (1.38-1.68 s:
+    # too close to 1.28); the 30 ms hold at 20 deg is shorter than a dwell; the first hold is the start
+    assert np.allclose(starts, [0.70, 1.28], atol=0.02), starts
+    assert idx[0] == 0 and idx[-1] == 2
+    assert np.all(np.diff(idx) >= 0)
+    with pytest.raises(ValueError, match="min_len_s"):
+        stretch_index(t, a, min_len_s=-1.0)
+
+
+def test_the_generic_remainder_kept_beside_a_named_family_is_listed_in_its_shape():
+    """refine.Outcome with a Remainder (unmodelled.fit_remainder's result): the named family's report entry lists
+    the kept generic tables, with their values and the RMS without each (no simulation: the report side only)."""
+    from etb_gym.diagnose.refine import Outcome
+    from etb_gym.diagnose.synthetic import make_recording as mk
+    base = make_plant("3B", substeps=20)
+    data = prepare([mk(base, np.random.default_rng(0), duration_s=0.5, name="r.csv")], 12.0)
+    speed = [t for t in U.generic_terms(base, data) if t.id == "unmodelled_speed"]
+    spec = Spec(base).with_candidate(speed[0].candidate())
+    x = np.concatenate([np.zeros(len(spec.params) - speed[0].n_coef), np.linspace(0.1, 0.5, speed[0].n_coef)])
+    fr = F.FitResult(spec, x, 1.0, 10, None, 0)
+    rem = U.Remainder(fr, speed, 2.0, 1.0, None, None, {"unmodelled_speed": 0.05})
+    out = Outcome(remainder=rem, remainder_of="airflow_torque")
+    shapes, unexplained = out.entries(["r.csv"], 0.1)
+    g = shapes["airflow_torque"]["generic_remainder"]
+    assert unexplained == [] and "airflow_torque" in g["description"] and "unmodelled_speed" in g["description"]
+    tab = g["tables"]["unmodelled_speed"]
+    assert tab["component"] == "effect.speed_friction_map" and tab["rms_without_deg"] == 0.05
+    n = speed[0].grid.size
+    assert np.allclose(tab["opening_Nm"] + tab["closing_Nm"], 0.005 * x[-2 * n:]), tab
+    assert g["heldout_named"] == 2.0 and g["heldout_with_tables"] == 1.0
