@@ -640,14 +640,18 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refine
         return None
     pb_formula = Problem.make(final.spec, final.x, ("nominal", cid))
     h_formula = heldout_error(pb_formula, data)
+    # the table is fitted, and its roughness chosen, on the replay that goes on from the model's own state
+    # (model.Data.continuity): over segments restarted at the readings a wrong shape costs little, the spring's
+    # rate and preload absorb it, and the cross-validation keeps the formula (docs/diagnosis.md, round 13)
+    cont = data if data.continuity else dataclasses.replace(data, continuity=True)
     best = None
     for term in terms:
         spec_m = final.spec.with_candidate(term.candidate())
         x0 = np.concatenate([final.x, np.zeros(term.n_coef)])
         pb = Problem.make(spec_m, x0, ("nominal", term.id), [term], data)
-        pf = fit_penalized(pb, data, log=None, folds=REFINE_FOLDS)
+        pf = fit_penalized(pb, cont, log=None, folds=REFINE_FOLDS)
         pb_fit = dataclasses.replace(pf.problem, x=pf.fit.x)
-        h_map = heldout_error(pb_fit, data, pf.lams, pf.jac)
+        h_map = heldout_error(pb_fit, data, pf.lams, pf.jac if cont is data else None)
         kept = h_map < (1.0 - MIN_GAIN) * h_formula
         log(f"  shape of {cid}: table over {term.cls.grid_field} ({term.grid.size} knots, roughness weight "
             f"{pf.lams_rel[0]:.2g}): held-out {h_formula:.3g} -> {h_map:.3g} ({'kept' if kept else 'not kept'})")
