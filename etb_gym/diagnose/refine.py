@@ -182,8 +182,10 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     catalogue candidate on it; a loop hides the effect from the held-out angle). Before "outside the
     catalogue", the families of the generic model's main table are tried with their own tables on the
     calibrated nominal model (unmodelled.catalogue_alternative; in a closed loop also accepted when they
-    account for the structure); a family so named replaces the steps the generic tables displaced. Returns
-    (final fit, steps, Outcome)."""
+    account for the structure); a family so named replaces the steps the generic tables displaced. A family
+    named, or kept, in place of the generic tables keeps the generic tables other than the one it does the job of
+    when they still lower the held-out error on top of it (unmodelled.fit_remainder; ``Outcome.remainder``).
+    Returns (final fit, steps, Outcome)."""
     from . import unmodelled as U
     res = Outcome()
     cur = final
