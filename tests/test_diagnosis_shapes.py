@@ -234,27 +234,6 @@ def test_the_stop_knots_of_a_table_are_not_read_as_the_torque():
     assert m[1:6].all() and not m[7:].any()         # visited inside the stroke / never reached
 
 
-def test_stretches_run_from_hold_to_hold_and_short_ones_merge():
-    """envelope.stretch_index: a new stretch starts in the middle of each hold that lies at least min_len_s after
-    the last start; a hold shorter than min_hold_s (a twitch) or too close to the last start splits nothing."""
-    from etb_gym.diagnose.envelope import stretch_index
-    dt = 1e-3
-    pieces = [np.full(300, 10.0), np.linspace(10, 40, 200), np.full(400, 40.0), np.linspace(40, 20, 100),
-              np.full(30, 20.0), np.linspace(20, 60, 200), np.full(100, 60.0), np.linspace(60, 62, 50),
-              np.full(300, 62.0)]
-    a = np.concatenate(pieces)
-    t = np.arange(a.size) * dt
-    idx = stretch_index(t, a, min_len_s=0.5)
-    starts = t[np.flatnonzero(np.diff(idx)) + 1]
-    # holds at 40 deg (0.5-0.9 s), 60 deg (1.23-1.33 s: 0.5 s after 0.7, so it splits) and 62 deg (1.38-1.68 s:
-    # too close to 1.28); the 30 ms hold at 20 deg is shorter than a dwell; the first hold is the start
-    assert np.allclose(starts, [0.70, 1.28], atol=0.02), starts
-    assert idx[0] == 0 and idx[-1] == 2
-    assert np.all(np.diff(idx) >= 0)
-    with pytest.raises(ValueError, match="min_len_s"):
-        stretch_index(t, a, min_len_s=-1.0)
-
-
 def test_the_generic_remainder_kept_beside_a_named_family_is_listed_in_its_shape():
     """refine.Outcome with a Remainder (unmodelled.fit_remainder's result): the named family's report entry lists
     the kept generic tables, with their values and the RMS without each (no simulation: the report side only)."""

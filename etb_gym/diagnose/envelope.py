@@ -131,27 +131,3 @@ def split_rms(resid_deg: np.ndarray, covered: np.ndarray) -> dict:
     return {"rms_covered_deg": rms(r2[c]), "rms_uncovered_deg": rms(r2[~c]), "time_uncovered": float(np.mean(~c)),
             "sq_error_uncovered": float(r2[~c].sum() / tot) if tot > 0 else 0.0}
 
-
-
-def stretch_index(t_s, angle_deg, min_len_s: float, min_hold_s: float = MIN_DWELL_S) -> np.ndarray:
-    """Per sample of a recording: the number (0, 1, ...) of the hold-to-hold stretch it belongs to. A stretch runs
-    from the middle of one hold (the plate held, |speed| < HELD_SPEED_DEG_S, for at least ``min_hold_s``) to the
-    middle of the next one that lies at least ``min_len_s`` later (closer holds, a dwell interrupted by noise or a
-    short twitch, stay in one stretch); the samples before the first hold's middle are stretch 0. Folds made of
-    whole stretches separate the operating points the plate was held at, with the motion between them."""
-    t_s = np.asarray(t_s, float)
-    if not min_len_s >= 0 or not min_hold_s > 0:
-        raise ValueError(f"stretch_index: min_len_s = {min_len_s} and min_hold_s = {min_hold_s} are invalid: "
-                         "expected a length of 0 or more and a positive hold in seconds")
-    held = np.abs(speed_deg_s(t_s, angle_deg)) < HELD_SPEED_DEG_S
-    dt = float(np.median(np.diff(t_s)))
-    d = np.diff(np.concatenate([[0], held.astype(int), [0]]))
-    starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
-    idx = np.zeros(t_s.size, int)
-    last = t_s[0]
-    for s, e in zip(starts, ends):
-        m = (s + e) // 2
-        if (e - s) * dt >= min_hold_s and t_s[m] - last >= min_len_s:
-            idx[m:] += 1
-            last = t_s[m]
-    return idx

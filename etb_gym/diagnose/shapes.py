@@ -57,8 +57,6 @@ VISIT_MIN_S = 0.02       # a knot the recordings spent less time near (hat-weigh
 ANCHOR = 1e3             # ... and is pulled to 0 (the formula alone) with this weight, relative to a roughness row
 ID_MIN = 0.01           # a knot whose Jacobian column carries less than this share of its table's median is not
                          # identified either (the plate pinned at a stop or in the limp-home band): anchored too
-REFINE_FOLDS = "stretch"  # a family's table: roughness chosen on folds of whole hold-to-hold stretches (_row_info)
-MIN_STRETCHES = 4        # ... where the recordings have at least this many (else the time blocks)
 OUTER_SPEED = 3.0        # speed tables get a last knot at this multiple of the fastest speed visited (anchored)
 
 
@@ -361,23 +359,12 @@ def nameplate_prior(spec: Spec, free: np.ndarray) -> np.ndarray | None:
     return w
 
 
-def _row_info(data: Data, folds: str = "time"):
-    """Per residual element (fit.residuals layout, current included): fold (0/1) and whether it is an angle.
-    ``folds``: "time", alternating FOLD_BLOCK_S blocks (fit.fold_masks); "stretch", alternating whole hold-to-hold
-    stretches of at least FOLD_BLOCK_S (envelope.stretch_index), or the time blocks where the recordings have fewer
-    than MIN_STRETCHES of them."""
-    if folds not in ("time", "stretch"):
-        raise ValueError(f"folds = {folds!r} is invalid: expected 'time' or 'stretch'")
-    per = {}
-    if folds == "stretch":
-        from .envelope import stretch_index
-        per = {id(rd): stretch_index(rd.rec.t_s, rd.rec.angle_deg, F.FOLD_BLOCK_S) for rd in data.recs}
-        if sum(int(s.max()) + 1 for s in per.values()) < MIN_STRETCHES:
-            per = {}
+def _row_info(data: Data):
+    """Per residual element (fit.residuals layout, current included): fold (0/1) and whether it is an angle."""
     fold, is_angle = [], []
     for k, rd, m, kind in _layout(data, None, True):
         t = rd.rec.t_s
-        fold.append(per[id(rd)] % 2 if id(rd) in per else (np.floor((t - t[0]) / F.FOLD_BLOCK_S).astype(int) % 2))
+        fold.append((np.floor((t - t[0]) / F.FOLD_BLOCK_S).astype(int) % 2))
         is_angle.append(np.full(t.size, kind == "angle"))
     return np.concatenate(fold), np.concatenate(is_angle)
 
@@ -467,8 +454,8 @@ def _objective(pb: Problem, r: np.ndarray, theta: np.ndarray, lams) -> float:
 class _Folds:
     """Normal equations of each fold (fit) and of the other fold's angle rows (score), computed once."""
 
-    def __init__(self, J, r, data: Data, folds: str = "time"):
-        fold, is_angle = _row_info(data, folds)
+    def __init__(self, J, r, data: Data):
+        fold, is_angle = _row_info(data)
         self.fit = [_gram(J, r, fold == f)[:2] for f in (0, 1)]
         self.test = [_gram(J, r, (fold != f) & is_angle) for f in (0, 1)]
 
@@ -481,14 +468,13 @@ class _Folds:
         return tot
 
 
-def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2,
-                   folds: str = "time") -> tuple[list, list]:
-    """Roughness weights (relative) by linearized cross-validation over two folds (``folds``: :func:`_row_info`),
-    angle rows scored, every free parameter (the nominal ones with the tables) solved per fold: a common weight
-    first, then each table's weight in turn (coordinate search on the grid)."""
+def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2) -> tuple[list, list]:
+    """Roughness weights (relative) by linearized cross-validation over the two time-block folds, angle rows
+    scored, every free parameter (the nominal ones with the tables) solved per fold: a common weight first, then
+    each table's weight in turn (coordinate search on the grid)."""
     if not pb.groups:
         return [], []
-    folds = _Folds(J, r, data, folds)
+    folds = _Folds(J, r, data)
     sc = _penalty_scales(J, pb)
     grid = list(grid)
     absl = lambda rel: [a * b for a, b in zip(rel, sc)]
@@ -542,7 +528,7 @@ def _coarse(spec: Spec, substeps: int) -> Spec:
 
 
 def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int | None = None, jac_substeps: int = JAC_SUBSTEPS,
-                  log=None, folds: str = "time") -> PenalizedFit:
+                  log=None) -> PenalizedFit:
     """Output-error fit of the free parameters with the roughness penalty; the weights by cross-validation
     (re-chosen at every Jacobian; the step is damped (Levenberg) if the plain one does not lower the
     penalized objective). Jacobians are taken at
@@ -558,7 +544,7 @@ def fit_penalized(pb: Problem, data: Data, grid=LAMBDAS, iters: int | None = Non
         J = _jacobian_at(pb, data, r, jac_substeps)
         if it == 0:
             pb = anchor_unidentified(pb, J)
-        rel, c = choose_lambdas(J, r, pb, data, grid, folds=folds)      # re-chosen at every linearization
+        rel, c = choose_lambdas(J, r, pb, data, grid)      # re-chosen at every linearization
         curve = curve or c
         lams = [a * b for a, b in zip(rel, _penalty_scales(J, pb))]
         theta = pb.x[pb.free]
@@ -649,7 +635,7 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refine
         spec_m = final.spec.with_candidate(term.candidate())
         x0 = np.concatenate([final.x, np.zeros(term.n_coef)])
         pb = Problem.make(spec_m, x0, ("nominal", term.id), [term], data)
-        pf = fit_penalized(pb, cont, log=None, folds=REFINE_FOLDS)
+        pf = fit_penalized(pb, cont, log=None)
         pb_fit = dataclasses.replace(pf.problem, x=pf.fit.x)
         h_map = heldout_error(pb_fit, data, pf.lams, pf.jac if cont is data else None)
         kept = h_map < (1.0 - MIN_GAIN) * h_formula
