@@ -30,8 +30,6 @@ class Outcome:
     outside: bool = False
     heldout_catalogue: float | None = None
     dropped: tuple = ()                    # catalogue ids the generic model displaced
-    remainder: object = None               # unmodelled.Remainder: generic tables kept beside a named family
-    remainder_of: str | None = None        # ... that family's id
 
     def entries(self, names, rms_before_deg: float) -> tuple[dict, list]:
         """(per effect id: the "shape" to add to that effect, entries to put first under "unexplained")."""
@@ -42,13 +40,6 @@ class Outcome:
                                          "heldout_formula": ref.heldout_formula, "heldout_map": ref.heldout_map,
                                          "description": f"the shape of {ref.family_id} learned from the data "
                                                         f"({ref.term.cls.kind} in the plant file, added to the formula)"}
-        if self.remainder is not None:
-            rm = self.remainder
-            shapes.setdefault(self.remainder_of, {})["generic_remainder"] = {
-                "tables": rm.tables(), "heldout_named": rm.heldout_named, "heldout_with_tables": rm.heldout,
-                "heldout_replay_named": rm.heldout_named_replay, "heldout_replay_with_tables": rm.heldout_replay,
-                "description": f"generic tables kept beside {self.remainder_of} (they lower its held-out error): "
-                               + ", ".join(f"{t.id} ({t.cls.description})" for t in rm.terms)}
         unexplained = []
         if self.outside and self.generic is not None:
             g = self.generic
@@ -69,10 +60,6 @@ class Outcome:
     def plot(self, path) -> str | None:
         """The learned tables on a matplotlib Agg canvas, written to ``path`` (None: nothing to draw)."""
         panels = [(r.term, r.table(), f"{r.family_id}: shape learned from the data") for r in self.refinements if r.kept]
-        if self.remainder is not None:
-            for t in self.remainder.terms:
-                tab = self.remainder.tables()[t.id]
-                panels.append((t, tab, f"beside {self.remainder_of} (generic remainder): {t.cls.description}"))
         if self.outside and self.generic is not None:
             g = self.generic
             for t in g.terms:
@@ -102,7 +89,7 @@ class Outcome:
         shapes, unexplained = self.entries(rep["recordings"], rep["rms_before_deg"])
         for e in rep["effects"]:
             if e["id"] in shapes:
-                e["shape"] = {**e.get("shape", {}), **shapes[e["id"]]}
+                e["shape"] = shapes[e["id"]]
         rep["unexplained"] = unexplained + list(rep["unexplained"])
         if self.outside:
             rep["outside_catalogue"] = unexplained[0]["id"] if unexplained else None
@@ -160,17 +147,6 @@ def _resolves(persistent, base: F.FitResult, log):
     return resolves
 
 
-def _with_remainder(res: Outcome, generic, named: F.FitResult, family_id: str, data: Data, log) -> F.FitResult:
-    """``named`` with the generic tables that still carry held-out gain beside the named family
-    (unmodelled.fit_remainder; recorded in ``res``), else ``named`` itself."""
-    from . import unmodelled as U
-    rem = U.fit_remainder(generic, named, data, log=log)
-    if rem is None:
-        return named
-    res.remainder, res.remainder_of = rem, family_id
-    return rem.fit
-
-
 def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, significant, log=print,
            outside: bool = True, persistent=None):
     """After the greedy selection: refine each accepted family's shape by its table (kept when the held-out
@@ -182,10 +158,8 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     catalogue candidate on it; a loop hides the effect from the held-out angle). Before "outside the
     catalogue", the families of the generic model's main table are tried with their own tables on the
     calibrated nominal model (unmodelled.catalogue_alternative; in a closed loop also accepted when they
-    account for the structure); a family so named replaces the steps the generic tables displaced. A family
-    named, or kept, in place of the generic tables keeps the generic tables other than the one it does the job of
-    when they still lower the held-out error on top of it (unmodelled.fit_remainder; ``Outcome.remainder``).
-    Returns (final fit, steps, Outcome)."""
+    account for the structure); a family so named replaces the steps the generic tables displaced. Returns
+    (final fit, steps, Outcome)."""
     from . import unmodelled as U
     res = Outcome()
     cur = final
@@ -238,7 +212,7 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
         if same:
             log(f"  the generic tables fit better, but their main term ({dom[0]}) is what {sorted(named)} "
                 "describes: the catalogue's name is kept")
-            return _with_remainder(res, g, cur, sorted(same)[0], data, log), steps, res
+            return cur, steps, res
         # the generic tables extend the calibrated nominal model, so a family that does their job is tried on
         # it too (not on top of the catalogue effects they displace), and accepted by the same closed-loop rule
         alt = U.catalogue_alternative(g, nominal, FAMILY_OF_TERM, data, significant, log=log, resolves=resolves)
@@ -250,8 +224,7 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
             res.refinements = [alt.refinement] if alt.refinement is not None else []
             res.dropped = tuple(st.id for st in steps)
             gain = 1.0 - alt.heldout / h_cat if h_cat > 0 else 0.0
-            fit = _with_remainder(res, g, alt.fit, alt.id, data, log)
-            return fit, [Step(alt.id, alt.formula, dbic(alt.formula, nominal), gain)], res
+            return alt.fit, [Step(alt.id, alt.formula, dbic(alt.formula, nominal), gain)], res
         res.outside = True
         res.dropped = tuple(st.id for st in steps)
         log(f"  outside the catalogue ({g.id}): held-out {g.heldout:.3g} against {h_cat:.3g} for the catalogue model"
