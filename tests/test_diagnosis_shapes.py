@@ -232,3 +232,34 @@ def test_the_stop_knots_of_a_table_are_not_read_as_the_torque():
     m = identified(grid, data)
     assert not m[0] and not m[-1]                   # the stops, 500 samples each
     assert m[1:6].all() and not m[7:].any()         # visited inside the stroke / never reached
+
+
+def test_a_family_table_is_fitted_on_both_views_of_an_open_loop_replay(monkeypatch):
+    """refine_family on the fit's view (segments restarted at the readings) of an open-loop recording fits the
+    table also on the continuous replay and takes the fit with the lower held-out error; on a continuous view
+    (or a closed loop's observer residual) it fits once. The fits and scores are stand-ins: the choice only."""
+    from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.model import restart_view
+    base = make_plant("3B", substeps=20)
+    data = prepare([make_recording(base, np.random.default_rng(0), duration_s=0.5, name="r.csv")], 12.0)
+    fr = F.FitResult(Spec(base).with_candidate(CANDIDATES["airflow_torque"]), np.zeros(0), 1.0, 10, None, 0)
+    fr.x = np.zeros(len(fr.spec.params))
+    seen = []
+
+    def fake_fit(pb, view, log=None):
+        seen.append(view.continuity)
+        x = pb.x.copy()
+        x[-1] = 1.0 if view.continuity else 2.0        # marks which view's fit it is
+        return S.PenalizedFit(F.FitResult(pb.spec, x, 1.0, 10, None, 0), [1.0], [1.0], None, pb, [])
+
+    def fake_heldout(pb, d, lams=(), J=None, jac_substeps=S.JAC_SUBSTEPS):
+        assert not d.continuity or d is data            # always scored on the view given to refine_family
+        return {1.0: 0.5, 2.0: 0.8}.get(float(pb.x[-1]), 1.0) if len(pb.x) > len(fr.x) else 1.0
+
+    monkeypatch.setattr(S, "fit_penalized", fake_fit)
+    monkeypatch.setattr(S, "heldout_error", fake_heldout)
+    ref = S.refine_family(fr, "airflow_torque", restart_view(data), log=lambda *a: None)
+    assert seen == [False, True] and ref.heldout_map == 0.5 and ref.fit.x[-1] == 1.0 and ref.kept
+    seen.clear()
+    ref = S.refine_family(fr, "airflow_torque", data, log=lambda *a: None)
+    assert seen == [True] and ref.heldout_map == 0.5
