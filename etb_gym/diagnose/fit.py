@@ -158,7 +158,7 @@ SCAN_RATIO = 3.0      # ... at least this factor apart
 SCAN_MIN = 0.5        # ... and at least this many scale steps from the start (closer, the local fit is enough)
 PROFILE_STEPS = 3     # profiled scan: Gauss-Newton steps on the nominal parameters per scan point (Jacobian fixed) ...
 PROFILE_GAIN = 0.1    # ... while each lowers the RSS by at least this share (chosen, not tuned: on the backlash of
-                      # docs/diagnosis.md round 13 the chord steps lowered it by 53, 52, 55 and 11 %)
+                      # docs/diagnosis.md round 13 the chord steps lowered it by 54, 52, 55 and 11 %)
 
 
 def scan_offsets(lo: float, hi: float) -> list[float]:
