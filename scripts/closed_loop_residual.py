@@ -6,6 +6,8 @@ Two measurements, both on synthetic closed-loop recordings (``synthetic.make_rec
                     RMS / noise floor, number of mismatch windows and whether the residual is significant
                     (result.significant_residual, what decides between `match` and a search for effects)
   --mode diagnose   the whole diagnosis (run.diagnose) per case: verdict, effects named, loop and residual used
+  --mode scan       a candidate's screening fit without / with the profiled scan, and its held-out gain over
+                    0.5 s and 0.1 s fold blocks (fit.py; docs/diagnosis.md round 13)
 
 Cases: clean 3B under the default PID, the PID without friction compensation and a stiffer PID without it
 (crossover 80 rad/s, phase margin 35 deg); clean random nameplates (``synthetic.random_nameplate``, the tool
@@ -152,6 +154,41 @@ def structure_row(rec, base) -> dict:
             "structure": [s.as_dict() for s in st], "cpu_s": round(time.process_time() - t0, 2)}
 
 
+def _cv(spec, data, x, block_s: float) -> float:
+    """fit.cross_validate's held-out angle error with every recording's folds of ``block_s``."""
+    real = F.fold_block_s
+    F.fold_block_s = lambda rd, b=F.FOLD_BLOCK_S: block_s
+    try:
+        from etb_gym.diagnose.explain import SCREEN_NFEV
+        return F.cross_validate(spec, data, x, max_nfev=SCREEN_NFEV)
+    finally:
+        F.fold_block_s = real
+
+
+def scan_row(rec, base, candidate: str) -> dict:
+    """A candidate's screening fit (explain.SCREEN_NFEV evaluations from the calibrated nominal model, the scan on
+    its main parameter) without and with the profiled scan (fit.scan_start), and the held-out error of the
+    nominal model and of the candidate (from the profiled fit) over folds of 0.5 s and FOLD_BLOCK_OBSERVER_S."""
+    from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.explain import SCREEN_NFEV, extend
+    from etb_gym.diagnose.model import restart_view
+    from etb_gym.diagnose.run import _base_and_data
+    b, data = _base_and_data(Options(plant=base.replace(control_period_s=rec.dt_s)), [rec])
+    fd = restart_view(data)
+    nom = F.calibrate(Spec(b), fd, max_nfev=40)
+    spec = nom.spec.with_candidate(CANDIDATES[candidate])
+    x0, k = extend(nom.x, spec), len(nom.x)
+    row = {"residual": data.recs[0].residual, "candidate": candidate, "rss_nominal": nom.rss}
+    for name, prof in (("plain", False), ("profiled", True)):
+        fr = F.fit(spec, fd, x0, max_nfev=SCREEN_NFEV, scan=k, profile_scan=prof)
+        row[name] = {"rss": fr.rss, "nfev": fr.nfev, "values": fr.values}
+    for bs in (F.FOLD_BLOCK_S, F.FOLD_BLOCK_OBSERVER_S):
+        cv0 = _cv(nom.spec, fd, nom.x, bs)
+        cv1 = _cv(spec, fd, F.fit(spec, fd, x0, max_nfev=SCREEN_NFEV, scan=k).x, bs)
+        row[f"heldout_{bs:g}s"] = {"nominal": cv0, candidate: cv1, "gain": 1.0 - cv1 / cv0}
+    return row
+
+
 def _cases(a, cases):
     """(case, seed, recording, plant given to the tool, family, effect size) per case to run."""
     if a.proof:
@@ -170,7 +207,8 @@ def _cases(a, cases):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--mode", choices=("nominal", "diagnose", "structure"), default="nominal")
+    ap.add_argument("--mode", choices=("nominal", "diagnose", "structure", "scan"), default="nominal")
+    ap.add_argument("--candidate", default="backlash", help="scan mode: the candidate whose screening fit is shown")
     ap.add_argument("--proof", nargs="*", default=None, metavar="FAMILY@SHAPE:SEED[:random]",
                     help="proof cases (proof.run_case's recordings) instead of --cases")
     ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated, of {', '.join(CASES)}")
@@ -204,6 +242,11 @@ def main(argv=None):
                 " ".join(f"{s['kind']}: z {s['z']:.1f} share {s['share_of_noise']:.2f} "
                          f"{'SIG' if s['significant'] else 'ok'} top {max(s['groups'], key=s['groups'].get)}"
                          for s in row["structure"])
+        elif a.mode == "scan":
+            row.update(scan_row(rec, base, a.candidate))
+            txt = (f"{a.candidate}: RSS nominal {row['rss_nominal']:.0f}, screening plain {row['plain']['rss']:.0f} "
+                   f"profiled {row['profiled']['rss']:.0f} ({row['profiled']['values']}); held-out gain "
+                   + ", ".join(f"{k[8:]} {v['gain']:+.0%}" for k, v in row.items() if k.startswith("heldout_")))
         else:
             res = diagnose([rec], options=Options(plant=base, jobs=a.jobs, progress=False, verbose=a.verbose,
                                                   residual=a.residual))

@@ -1,6 +1,7 @@
 """The coarse scan before a candidate's local fit (fit.scan_start): where it looks, and a case it rescues."""
 import math
 
+import numpy as np
 import pytest
 
 from etb_gym.diagnose import fit as F
@@ -47,4 +48,41 @@ def test_scan_finds_a_closed_loop_sensor_offset_the_local_fit_alone_misses():
     assert abs(off_scan - 0.5) < 0.15, off_scan
     assert scanned.rss < 0.5 * local.rss, (scanned.rss, local.rss, off_local)
     assert scanned.rss < 0.5 * nom.rss
-    assert math.isfinite(scanned.rss) and scanned.nfev <= local.nfev + 2 * F.SCAN_POINTS + SCREEN_NFEV
+    n_profile = len(spec.nominal) + F.PROFILE_STEPS * 2 * F.SCAN_POINTS        # the profiled scan's evaluations
+    assert math.isfinite(scanned.rss) and scanned.nfev <= local.nfev + 2 * F.SCAN_POINTS + n_profile + SCREEN_NFEV
+
+
+def _collinear_residual(K=10.0, b_true=2.0, n=400):
+    """r(a, b) = (a + K b + b^2 s) - (a_true + K b_true + b_true^2 s): to first order the candidate b does what
+    the fitted a does (a free play: a spring preload shift), so at a = a_true + K b_true, b = 0 (the nominal fit
+    that absorbed it) the Jacobian's columns are collinear and b alone only makes the fit worse."""
+    s = np.sin(np.linspace(0.0, 12.0, n))
+    y = 1.0 + K * b_true + b_true ** 2 * s
+
+    def fun(x):
+        return x[0] + K * x[1] + x[1] ** 2 * s - y
+    fun.failure = None
+    return fun, np.array([1.0 + K * b_true, 0.0])
+
+
+def test_profiled_scan_finds_a_parameter_whose_first_order_effect_the_fitted_ones_already_carry():
+    fun, x0 = _collinear_residual()
+    lo, hi = np.array([-100.0, 0.0]), np.array([100.0, 10.0])
+    r0 = fun(x0)
+    plain, r_plain, _ = F.scan_start(fun, x0, r0, 1, lo, hi)
+    prof, r_prof, n = F.scan_start(fun, x0, r0, 1, lo, hi, profile=[0])
+    assert plain[1] == 0.0 and float(r_plain @ r_plain) == pytest.approx(float(r0 @ r0))   # the scan alone: stuck
+    assert prof[1] > 0.5 and float(r_prof @ r_prof) < 0.6 * float(r0 @ r0), (prof, float(r_prof @ r_prof))
+    assert n <= len(F.scan_offsets(lo[1] - x0[1] + 1e-9, hi[1] - x0[1] - 1e-9)) * (1 + F.PROFILE_STEPS) + 1
+
+
+def test_observer_recordings_are_cross_validated_on_short_blocks_replays_on_long_ones():
+    from types import SimpleNamespace as NS
+    t = np.arange(0.0, 2.0, 0.001)
+    data = NS(recs=[NS(rec=NS(t_s=t), residual="observer"), NS(rec=NS(t_s=t), residual="replay")])
+    A, B = F.fold_masks(data)
+    for a, b, block in zip(A, B, (F.FOLD_BLOCK_OBSERVER_S, F.FOLD_BLOCK_S)):
+        assert not np.any(a & b) and np.all(a | b)
+        switches = np.flatnonzero(np.diff(a.astype(int))) + 1
+        assert np.allclose(np.diff(t[switches]), block, atol=2e-3), block
+    assert F.FOLD_BLOCK_OBSERVER_S < F.FOLD_BLOCK_S
