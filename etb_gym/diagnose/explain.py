@@ -237,6 +237,9 @@ def _tell_apart(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, g
     # tables only break near-ties the formulas cannot (an angle-only table can mimic a current-scaled
     # torque when the holding current follows the angle)
     ids = [c for c in ids if c == gains[0][2] or cv_gain.get(c, gains[0][0]) >= RIVAL_CV_SHARE * gains[0][0]]
+    if _open_loop(ctx.data):        # the other direction class, significant but not close: the tables decide
+        extra = [c for c in D.direction_rivals(screened, gains[0][2], BIC_MIN) if c not in ids]
+        ids = (ids or [gains[0][2]]) + extra if extra else ids
     if len(ids) < 2 or len({D.table_kind(c) for c in ids}) < 2:
         # airflow and spring asymmetry alone: one table, told apart by where its torque acts
         ids = D.angle_pair(screened, ref.rss, gains[0][2])
@@ -246,16 +249,38 @@ def _tell_apart(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, g
     for a, b in (D.ANGLE_ONLY, D.ANGLE_ONLY[::-1]):      # the other angle-only family shares the table: free
         if a in ids and b not in ids and b in screened_ids:
             ids = ids + [b]
-    active = tuple(c.id for c in cur.spec.candidates)
     ctx.describe(f"round {rnd + 1}: telling {len(ids)} angle-dependent torques apart")
     evidence = D.discriminate(cur, ctx.data, ids, ctx.log)
-    w = evidence["winner"]
+    _winner_first(ctx, cur, ref, screened, gains, cv0, evidence["winner"])
+    return evidence
+
+
+def _winner_first(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float, w: str):
+    """The physics' choice ``w`` first in ``gains`` (cross-validated and added if it was not there)."""
+    active = tuple(c.id for c in cur.spec.candidates)
     if w not in [c for _, _, c, _ in gains]:
         fr_w = next(fr for _, c, fr in screened if c == w)
         cv = ctx.runner.map([("cv", ctx.base_dict, ctx.nominal, active + (w,), fr_w.x, SCREEN_NFEV)])[0]
         if not isinstance(cv, Skipped):
             gains.append((1.0 - cv / cv0 if cv0 > 0 else 0.0, dbic(fr_w, ref), w, fr_w))
     gains.sort(key=lambda s: (s[2] != w, -s[0]))             # the physics' choice first
+
+
+def _open_loop(data: Data) -> bool:
+    """All recordings scored by the replay (open loop): a closed loop's observer residual shows another side."""
+    return all(rd.residual == "replay" for rd in data.recs)
+
+
+def _voltage_side(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float, rnd: int):
+    """Step 2a (open loops): is the mismatch in the coil's voltage balance rather than on the plate
+    (discriminate.voltage_side: the current's residual)? Returns the evidence and puts its choice first in
+    ``gains``, or None."""
+    if not _open_loop(ctx.data):
+        return None
+    ctx.describe(f"round {rnd + 1}: voltage or torque side")
+    evidence = D.voltage_side(screened, gains[0][2], ctx.data, BIC_MIN, ctx.log)
+    if evidence is not None:
+        _winner_first(ctx, cur, ref, screened, gains, cv0, evidence["winner"])
     return evidence
 
 
@@ -337,7 +362,8 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
                 return disturbance.resolved(z, z_new)
         if passing:
             passing.sort(key=lambda s: -s[0])
-            evidence = _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd)
+            evidence = (_voltage_side(ctx, cur, ref, screened, passing, cv0, rnd)
+                        or _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd))
             if resolves is not None:            # the others may still account for the structure
                 passing += sorted([g for g in gains if g not in passing], key=lambda s: s[1])
         elif resolves is not None:
