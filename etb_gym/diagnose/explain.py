@@ -228,6 +228,49 @@ def _validate(ctx: _Ctx, cur: F.FitResult, top: list, rnd: int):
     return cv0, gains
 
 
+def _direction(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float, rnd: int):
+    """Step 2a' (open loops): a torque against the motion or not? The other direction class's families that
+    screened significant but not close to the leader (discriminate.direction_rivals) and the leader are fitted
+    to convergence (FULL_NFEV, from their screening fits, as the accepted fit is); the one whose fit lowers the
+    angle RMS most is tried first. Why: the screening's SCREEN_NFEV evaluations are about two Jacobians, enough
+    for a torque linear in its parameters (airflow's polynomial) and not for a friction's stick-slip (measured:
+    a rational Stribeck curve screened at dBIC -13 against airflow's -81; fitted to convergence, angle RMS x0.08
+    against x0.57). Returns the evidence (None when the leader stays first) and reorders ``gains``."""
+    if not _open_loop(ctx.data):
+        return None
+    leader = gains[0][2]
+    close = D.rivals(screened, ref.rss, leader)          # close ones: the tables' job (_tell_apart)
+    ids = [leader] + [c for c in D.direction_rivals(screened, leader, BIC_MIN) if c not in close]
+    if len(ids) < 2:
+        return None
+    ctx.describe(f"round {rnd + 1}: against the motion or not ({len(ids)} fits)")
+    active = tuple(c.id for c in cur.spec.candidates)
+    fits = {c: fr for _, c, fr in screened}
+    res = ctx.runner.map([("fit", ctx.base_dict, ctx.nominal, active + (c,), fits[c].x, FULL_NFEV, len(cur.x))
+                          for c in ids])
+    full, ratio = {}, {}
+    for c, r in zip(ids, res):
+        if not isinstance(r, Skipped):
+            full[c] = F.FitResult(fits[c].spec, *r)
+            ratio[c] = angle_rms_ratio(full[c], cur, ctx.data)
+    ctx.log("  against the motion or not: angle RMS of the converged fits "
+            + ", ".join(f"{c} x{v:.2f}" for c, v in ratio.items()))
+    if leader not in ratio:
+        return None
+    w = min(ratio, key=ratio.get)
+    if w == leader:
+        return None
+    _winner_first(ctx, cur, ref, screened, gains, cv0, w)
+    if gains[0][2] != w:                                # its cross-validation could not be simulated
+        return None
+    g, d, _, _ = gains[0]
+    gains[0] = (g, d, w, full[w])                       # the acceptance's fit starts from the converged one
+    return {"rivals": [c for c in ids if c != w], "winner": w, "rms_ratio": ratio,
+            "signature": {c: D.SIGNATURE[c] for c in ids},
+            "rule": "a torque against the motion or not: the families of the other direction class that screened "
+                    "significant, fitted to convergence with the leader; the lowest angle RMS is tried first"}
+
+
 def _tell_apart(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv_gain: dict,
                 cv0: float, rnd: int):
     """Step 2b: when angle-dependent torque families are close, compare them by physics (discriminate.py);
@@ -237,9 +280,6 @@ def _tell_apart(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, g
     # tables only break near-ties the formulas cannot (an angle-only table can mimic a current-scaled
     # torque when the holding current follows the angle)
     ids = [c for c in ids if c == gains[0][2] or cv_gain.get(c, gains[0][0]) >= RIVAL_CV_SHARE * gains[0][0]]
-    if _open_loop(ctx.data):        # the other direction class, significant but not close: the tables decide
-        extra = [c for c in D.direction_rivals(screened, gains[0][2], BIC_MIN) if c not in ids]
-        ids = (ids or [gains[0][2]]) + extra if extra else ids
     if len(ids) < 2 or len({D.table_kind(c) for c in ids}) < 2:
         # airflow and spring asymmetry alone: one table, told apart by where its torque acts
         ids = D.angle_pair(screened, ref.rss, gains[0][2])
@@ -278,7 +318,7 @@ def _voltage_side(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list,
     if not _open_loop(ctx.data):
         return None
     ctx.describe(f"round {rnd + 1}: voltage or torque side")
-    evidence = D.voltage_side(screened, gains[0][2], ctx.data, BIC_MIN, ctx.log)
+    evidence = D.voltage_side(ref, screened, gains[0][2], ctx.data, BIC_MIN, ctx.log)
     if evidence is not None:
         _winner_first(ctx, cur, ref, screened, gains, cv0, evidence["winner"])
     return evidence
@@ -363,6 +403,7 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         if passing:
             passing.sort(key=lambda s: -s[0])
             evidence = (_voltage_side(ctx, cur, ref, screened, passing, cv0, rnd)
+                        or _direction(ctx, cur, ref, screened, passing, cv0, rnd)
                         or _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd))
             if resolves is not None:            # the others may still account for the structure
                 passing += sorted([g for g in gains if g not in passing], key=lambda s: s[1])
