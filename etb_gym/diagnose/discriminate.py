@@ -42,7 +42,8 @@ SIGNATURE = {"shaft_flux_loss": "proportional to the current, a function of the 
              "coil_heating": "a resistance that rises with the dissipated heat (the current's residual)",
              "inductance_saturation": "an inductance falling with the current (the current's transients)"}
 AGAINST_MOTION = ("angle_dependent_friction", "stribeck_friction")   # a torque whose sign follows the motion
-DIRECTION_GROUP = GROUP + ("stribeck_friction",)    # told apart by direction (open loops, direction_rivals)
+DIRECTION_GROUP = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry",
+                   "stribeck_friction")                 # told apart by direction (open loops, direction_rivals)
 MARGIN_SHARE = 0.5    # a rival is close when its screening RSS drop is at least this share of the leader's
 GN_ITER = 2           # Gauss-Newton iterations of each family's table fit
 
