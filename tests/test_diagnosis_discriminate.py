@@ -60,10 +60,6 @@ def test_rivals_are_group_members_close_to_the_leader_with_another_table():
     assert D.rivals(screened, 100.0, "coil_heating") == []
     # airflow and spring share the angle-only table: nothing to tell apart by physics
     assert D.rivals(screened[:1] + screened[2:3], 100.0, "airflow_torque") == []
-    # a torque-constant error and a flux loss: both proportional to the current, one table over the current,
-    # the other over the angle
-    tk = [(-900, "torque_constant_error", _Fit(40.0)), (-800, "shaft_flux_loss", _Fit(50.0))]
-    assert D.rivals(tk, 100.0, "torque_constant_error") == ["torque_constant_error", "shaft_flux_loss"]
 
 
 @pytest.mark.parametrize("h_table, significant, periodic, rms_alt, expect", [

@@ -30,10 +30,8 @@ from . import fit as F
 from . import shapes as S
 from .model import Data
 
-GROUP = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry", "torque_constant_error")
-SIGNATURE = {"shaft_flux_loss": "proportional to the current, a function of the angle",
-             "torque_constant_error": "proportional to the current, the same factor at every angle (or a "
-                                      "function of the current)",
+GROUP = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry")
+SIGNATURE = {"shaft_flux_loss": "proportional to the current",
              "angle_dependent_friction": "opposes the motion (sign of the speed)",
              "stribeck_friction": "opposes the motion, a function of the speed",
              "airflow_torque": "a function of the opening alone",
@@ -87,20 +85,11 @@ def table_kind(cid: str) -> str:
     return {"airflow_torque": "angle", "spring_asymmetry": "angle"}.get(cid, cid)
 
 
-def table_term(cid: str, base, data: Data) -> S.MapTerm:
-    """The table a family is compared by: its own (shapes.family_term), but for a torque-constant error the one
-    over the current (the flux loss has the one over the angle: a constant error scales the torque by the same
-    factor at every angle, and where it is not a constant it varies with the current, not the angle)."""
-    if cid == "torque_constant_error":
-        return next(t for t in S.family_terms(cid, base, data) if t.cls.grid_field == "current_A")
-    return S.family_term(cid, base, data)
-
-
 def table_heldout(cur: F.FitResult, cid: str, data: Data, tables: dict | None = None) -> float:
     """Held-out mean square angle residual (noise units) of the current model plus ``cid``'s family table
     (shape free, roughness by cross-validation), nominal parameters refitted with it. ``tables``: the fitted
     table is stored there as ``tables[cid] = (grid, values)``."""
-    term = table_term(cid, cur.spec.base, data)
+    term = S.family_term(cid, cur.spec.base, data)
     spec_m = cur.spec.with_candidate(term.candidate())
     pb = S.Problem.make(spec_m, np.concatenate([cur.x, np.zeros(term.n_coef)]), ("nominal", term.id), [term], data)
     pf = S.fit_penalized(pb, data, iters=GN_ITER)
