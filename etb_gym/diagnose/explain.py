@@ -9,6 +9,9 @@ One round:
               RSS); validation and the accepted fit run at the diagnosis's own step
   2. validate the TOP_K candidates with dBIC < -BIC_MIN are cross-validated over two folds of alternating
               time blocks (fit on one, score the other); the current model is cross-validated the same way
+  2a/2a'/2b   open loops: a voltage-side candidate first when it accounts for the current's residual
+              (_voltage_side); a friction vs a torque that does not turn with the motion compared by converged
+              fits (_direction); close angle-torque rivals by their tables (_tell_apart, both loops)
   3. accept   the candidate with the lowest held-out error, if it beats the current model's held-out error
               by at least CV_MIN_GAIN, and if, refitted on all the data, it lowers the RMS angle residual
               over the recordings by at least RMS_MIN_GAIN (a closed loop's replay drifts through stick-slip
