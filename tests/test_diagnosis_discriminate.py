@@ -146,3 +146,61 @@ def test_a_family_whose_own_angle_table_is_periodic_is_no_alternative(monkeypatc
     alt = U.catalogue_alternative(_stub_generic(["unmodelled_angle"], 1.0), _Cur(), {"unmodelled_angle": ("airflow_torque",)},
                                   None, lambda fr: False, log=lambda *a: None)
     assert alt is None
+
+
+def _sfit(x=None):
+    return type("Fit", (), {"x": x})()
+
+
+def test_friction_and_angle_only_torques_are_rivals_when_the_other_class_screened_significant():
+    """A friction whose curve is not its candidate's formula screens far behind an angle-only torque (a
+    rational Stribeck curve: dBIC -13 against -81 for airflow); whether the torque turns with the motion is what
+    the tables then decide, so a significant member of the other direction class is a rival, close or not."""
+    screened = [(-81, "airflow_torque", None), (-46, "torque_constant_error", None), (-27, "shaft_flux_loss", None),
+                (-13, "stribeck_friction", None), (-9, "angle_dependent_friction", None)]
+    assert D.direction_rivals(screened, "airflow_torque", 10.0) == ["stribeck_friction"]
+    assert D.direction_rivals(screened, "stribeck_friction", 10.0) == ["airflow_torque", "shaft_flux_loss"]
+    assert D.direction_rivals(screened, "torque_constant_error", 10.0) == []       # not a direction family
+    assert D.direction_rivals(screened, "airflow_torque", 15.0) == []               # not significant
+
+
+@pytest.mark.parametrize("ms, expect", [
+    # the current model, the torque-side leader, two voltage-side candidates (mean square, noise units)
+    ((59.3, 59.0, 28.8, 59.1), "supply_drop"),        # measured: random nameplate s0, a diode-like drop
+    ((59.3, 59.0, 59.1, 20.0), "coil_heating"),
+    ((60.0, 30.0, 20.0, 59.0), None),                 # the leader accounts for half: not twice as much
+    ((60.0, 59.0, 50.0, 59.0), None),                 # the candidate accounts for less than a quarter
+    ((3.0, 3.0, 1.2, 3.0), None),                     # the current residual is at the noise
+    ((None, None, None, None), None),                 # no current recorded
+])
+def test_a_voltage_side_candidate_is_named_when_it_accounts_for_the_current_residual(monkeypatch, ms, expect):
+    """An effect on the plate changes the current only through the back-EMF; one in the coil's voltage balance
+    changes the current itself (a supply drop against the drive had been named angle-dependent friction)."""
+    ids = ("ref", "angle_dependent_friction", "supply_drop", "coil_heating")
+    table = dict(zip(ids, ms))
+    monkeypatch.setattr(D, "current_ms", lambda fr, data: table[fr.x])
+    fits = {c: _sfit(c) for c in ids}
+    screened = [(-67, "supply_drop", fits["supply_drop"]), (-53, "angle_dependent_friction",
+                                                            fits["angle_dependent_friction"]),
+                (-20, "coil_heating", fits["coil_heating"]), (-5, "inductance_saturation", _sfit("inductance"))]
+    ev = D.voltage_side(fits["ref"], screened, "angle_dependent_friction", None, 10.0, log=lambda *a: None)
+    assert (ev["winner"] if ev else None) == expect
+    if ev:
+        assert ev["rivals"] == ["angle_dependent_friction"] and "inductance_saturation" not in ev["current_ms"]
+    assert D.voltage_side(fits["ref"], screened, "supply_drop", None, 10.0, log=lambda *a: None) is None
+
+
+@pytest.mark.parametrize("effect, voltage_side", [
+    (lambda: fx.SupplyDrop(series_resistance_ohm=0.3, forward_drop_V=0.4), True),
+    (lambda: fx.AirflowTorque(quadratic_Nm=0.04, cubic_Nm=-0.02), False),
+])
+def test_only_a_voltage_side_effect_leaves_a_current_residual(effect, voltage_side):
+    """The premise of discriminate.voltage_side on a 2 s open-loop recording of 3B: the nominal model (the
+    truth's own nominal parameters) leaves a current residual far above the noise under a supply drop, and below
+    CURRENT_MS_MIN under a torque on the plate of the same order (only its back-EMF reaches the current: 2.0)."""
+    truth = make_plant("3B", substeps=20, effects=[effect()])
+    data = prepare([make_recording(truth, np.random.default_rng(3), duration_s=2.0, name="rig.csv")], 12.0)
+    spec = Spec(make_plant("3B", substeps=20))
+    nominal = F.FitResult(spec, spec.x0(), 0.0, 0, None, 0)
+    ms = D.current_ms(nominal, data)
+    assert (ms > 10 * D.CURRENT_MS_MIN) if voltage_side else (ms < D.CURRENT_MS_MIN), ms

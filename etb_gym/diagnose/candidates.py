@@ -133,7 +133,10 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
               fx.CoilHeating, ties=(("cold_resistance_ohm", "drive.resistance_ohm"),)),
     Candidate("supply_drop", "electrical", fx.SupplyDrop.description,
               (P("series_resistance_ohm", 0.02, -0.5, 3.0, 0.1, "ohm", ref="resistance_ohm"),
-               P("forward_drop_V", 0.05, -1.0, 3.0, 0.2, "V")), fx.SupplyDrop),
+               P("forward_drop_V", 0.05, -1.0, 3.0, 0.2, "V"),
+               # the current over which the forward drop builds up is the rig's switch or diode, not a constant
+               # (docs/diagnosis.md, open loop round 13: a diode-like drop with a 0.05-0.3 A knee)
+               P("forward_current_A", 0.05, 0.005, 1.0, 0.05, "A", ref="current_A")), fx.SupplyDrop),
     Candidate("torque_constant_error", "electrical", fx.TorqueConstantError.description,
               (P("delta_Nm_per_A", 0.0, -0.08, 0.08, 0.01, "N m/A", ref="torque_constant_Nm_per_A"),), fx.TorqueConstantError),
     Candidate("inductance_saturation", "electrical", fx.InductanceSaturation.description,

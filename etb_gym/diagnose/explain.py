@@ -9,6 +9,9 @@ One round:
               RSS); validation and the accepted fit run at the diagnosis's own step
   2. validate the TOP_K candidates with dBIC < -BIC_MIN are cross-validated over two folds of alternating
               time blocks (fit on one, score the other); the current model is cross-validated the same way
+  2a/2a'/2b   open loops: a voltage-side candidate first when it accounts for the current's residual
+              (_voltage_side); a friction vs a torque that does not turn with the motion compared by converged
+              fits (_direction); close angle-torque rivals by their tables (_tell_apart, both loops)
   3. accept   the candidate with the lowest held-out error, if it beats the current model's held-out error
               by at least CV_MIN_GAIN, and if, refitted on all the data, it lowers the RMS angle residual
               over the recordings by at least RMS_MIN_GAIN (a closed loop's replay drifts through stick-slip
@@ -228,6 +231,49 @@ def _validate(ctx: _Ctx, cur: F.FitResult, top: list, rnd: int):
     return cv0, gains
 
 
+def _direction(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float, rnd: int):
+    """Step 2a' (open loops): a torque against the motion or not? The other direction class's families that
+    screened significant but not close to the leader (discriminate.direction_rivals) and the leader are fitted
+    to convergence (FULL_NFEV, from their screening fits, as the accepted fit is); the one whose fit lowers the
+    angle RMS most is tried first. Why: the screening's SCREEN_NFEV evaluations are about two Jacobians, enough
+    for a torque linear in its parameters (airflow's polynomial) and not for a friction's stick-slip (measured:
+    a rational Stribeck curve screened at dBIC -13 against airflow's -81; fitted to convergence, angle RMS x0.08
+    against x0.57). Returns the evidence (None when the leader stays first) and reorders ``gains``."""
+    if not _open_loop(ctx.data):
+        return None
+    leader = gains[0][2]
+    close = D.rivals(screened, ref.rss, leader)          # close ones: the tables' job (_tell_apart)
+    ids = [leader] + [c for c in D.direction_rivals(screened, leader, BIC_MIN) if c not in close]
+    if len(ids) < 2:
+        return None
+    ctx.describe(f"round {rnd + 1}: against the motion or not ({len(ids)} fits)")
+    active = tuple(c.id for c in cur.spec.candidates)
+    fits = {c: fr for _, c, fr in screened}
+    res = ctx.runner.map([("fit", ctx.base_dict, ctx.nominal, active + (c,), fits[c].x, FULL_NFEV, len(cur.x))
+                          for c in ids])
+    full, ratio = {}, {}
+    for c, r in zip(ids, res):
+        if not isinstance(r, Skipped):
+            full[c] = F.FitResult(fits[c].spec, *r)
+            ratio[c] = angle_rms_ratio(full[c], cur, ctx.data)
+    ctx.log("  against the motion or not: angle RMS of the converged fits "
+            + ", ".join(f"{c} x{v:.2f}" for c, v in ratio.items()))
+    if leader not in ratio:
+        return None
+    w = min(ratio, key=ratio.get)
+    if w == leader:
+        return None
+    _winner_first(ctx, cur, ref, screened, gains, cv0, w)
+    if gains[0][2] != w:                                # its cross-validation could not be simulated
+        return None
+    g, d, _, _ = gains[0]
+    gains[0] = (g, d, w, full[w])                       # the acceptance's fit starts from the converged one
+    return {"rivals": [c for c in ids if c != w], "winner": w, "rms_ratio": ratio,
+            "signature": {c: D.SIGNATURE[c] for c in ids},
+            "rule": "a torque against the motion or not: the families of the other direction class that screened "
+                    "significant, fitted to convergence with the leader; the lowest angle RMS is tried first"}
+
+
 def _tell_apart(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv_gain: dict,
                 cv0: float, rnd: int):
     """Step 2b: when angle-dependent torque families are close, compare them by physics (discriminate.py);
@@ -246,16 +292,38 @@ def _tell_apart(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, g
     for a, b in (D.ANGLE_ONLY, D.ANGLE_ONLY[::-1]):      # the other angle-only family shares the table: free
         if a in ids and b not in ids and b in screened_ids:
             ids = ids + [b]
-    active = tuple(c.id for c in cur.spec.candidates)
     ctx.describe(f"round {rnd + 1}: telling {len(ids)} angle-dependent torques apart")
     evidence = D.discriminate(cur, ctx.data, ids, ctx.log)
-    w = evidence["winner"]
+    _winner_first(ctx, cur, ref, screened, gains, cv0, evidence["winner"])
+    return evidence
+
+
+def _winner_first(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float, w: str):
+    """The physics' choice ``w`` first in ``gains`` (cross-validated and added if it was not there)."""
+    active = tuple(c.id for c in cur.spec.candidates)
     if w not in [c for _, _, c, _ in gains]:
         fr_w = next(fr for _, c, fr in screened if c == w)
         cv = ctx.runner.map([("cv", ctx.base_dict, ctx.nominal, active + (w,), fr_w.x, SCREEN_NFEV)])[0]
         if not isinstance(cv, Skipped):
             gains.append((1.0 - cv / cv0 if cv0 > 0 else 0.0, dbic(fr_w, ref), w, fr_w))
     gains.sort(key=lambda s: (s[2] != w, -s[0]))             # the physics' choice first
+
+
+def _open_loop(data: Data) -> bool:
+    """All recordings scored by the replay (open loop): a closed loop's observer residual shows another side."""
+    return all(rd.residual == "replay" for rd in data.recs)
+
+
+def _voltage_side(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float, rnd: int):
+    """Step 2a (open loops): is the mismatch in the coil's voltage balance rather than on the plate
+    (discriminate.voltage_side: the current's residual)? Returns the evidence and puts its choice first in
+    ``gains``, or None."""
+    if not _open_loop(ctx.data):
+        return None
+    ctx.describe(f"round {rnd + 1}: voltage or torque side")
+    evidence = D.voltage_side(ref, screened, gains[0][2], ctx.data, BIC_MIN, ctx.log)
+    if evidence is not None:
+        _winner_first(ctx, cur, ref, screened, gains, cv0, evidence["winner"])
     return evidence
 
 
@@ -337,7 +405,9 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
                 return disturbance.resolved(z, z_new)
         if passing:
             passing.sort(key=lambda s: -s[0])
-            evidence = _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd)
+            evidence = (_voltage_side(ctx, cur, ref, screened, passing, cv0, rnd)
+                        or _direction(ctx, cur, ref, screened, passing, cv0, rnd)
+                        or _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd))
             if resolves is not None:            # the others may still account for the structure
                 passing += sorted([g for g in gains if g not in passing], key=lambda s: s[1])
         elif resolves is not None:
