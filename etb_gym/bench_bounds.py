@@ -31,21 +31,26 @@ def bound_plant(env_id: str, variant: str):
     return VARIANTS[variant].plant.apply(make_plant(model_of(env_id)))
 
 
-def bound_fingerprint(job: BoundJob) -> str:
-    """What the bound depends on: the plant's parameters and supply, the step, the band, the horizon and the
-    search method. A cached bound is reused only for the same fingerprint."""
+def _fingerprint(env_id: str, variant: str, **what) -> str:
+    """A bound's fingerprint: the plant a variant's env steps (its parameters, model, supply and step) and
+    ``what`` else the bound depends on."""
     import hashlib
     import json
 
+    p = bound_plant(env_id, variant)
+    spec = {"plant": sorted((k, repr(v)) for k, v in p.params_dict().items()), "model": p.model,
+            "supply_V": p.supply.voltage_V, "dt": p.control_period_s, "substeps": p.substeps, **what}
+    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def bound_fingerprint(job: BoundJob) -> str:
+    """What the bound depends on: the plant's parameters and supply, the step, the band, the horizon and the
+    search method. A cached bound is reused only for the same fingerprint."""
     from etb_gym.bound import BOUND_METHOD
 
-    p = bound_plant(job.env_id, job.variant)
     sc = SCENARIOS[job.scenario]
-    spec = {"plant": sorted((k, repr(v)) for k, v in p.params_dict().items()), "model": p.model,
-            "supply_V": p.supply.voltage_V, "dt": p.control_period_s, "substeps": p.substeps,
-            "step": [sc.step_from_deg, sc.step_to_deg, step_band_deg(sc), sc.duration_s - sc.step_at_s, TAIL_S],
-            "method": BOUND_METHOD}
-    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
+    return _fingerprint(job.env_id, job.variant, method=BOUND_METHOD,
+                        step=[sc.step_from_deg, sc.step_to_deg, step_band_deg(sc), sc.duration_s - sc.step_at_s, TAIL_S])
 
 
 _BOUNDS: dict = {}
@@ -129,19 +134,12 @@ def tracking_key(env_id: str, scenario: str, variant: str, seed: int) -> str:
 def tracking_fingerprint(env_id: str, scenario: str, variant: str, seed: int) -> str:
     """What a tracking bound depends on: the plant's parameters and supply, the reference (and its seed when it
     is drawn from it), the horizon, the scored window and the search method."""
-    import hashlib
-    import json
-
     from etb_gym.bench_scenarios import HOLD_S
 
-    p = bound_plant(env_id, variant)
     sc = SCENARIOS[scenario]
-    spec = {"plant": sorted((k, repr(v)) for k, v in p.params_dict().items()), "model": p.model,
-            "supply_V": p.supply.voltage_V, "dt": p.control_period_s, "substeps": p.substeps,
-            "reference": sorted((k, repr(v)) for k, v in sc.reference.items()), "initial_deg": sc.initial_deg,
-            "duration_s": sc.duration_s, "scored_from_s": HOLD_S,
-            "seed": int(seed) if _random_reference(scenario) else None, "method": TRACKING_BOUND_METHOD}
-    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:16]
+    return _fingerprint(env_id, variant, reference=sorted((k, repr(v)) for k, v in sc.reference.items()),
+                        initial_deg=sc.initial_deg, duration_s=sc.duration_s, scored_from_s=HOLD_S,
+                        seed=int(seed) if _random_reference(scenario) else None, method=TRACKING_BOUND_METHOD)
 
 
 def read_tracking_bounds(path=None) -> dict:

@@ -40,8 +40,7 @@ SIGNATURE = {"shaft_flux_loss": "proportional to the current",
              "coil_heating": "a resistance that rises with the dissipated heat (the current's residual)",
              "inductance_saturation": "an inductance falling with the current (the current's transients)"}
 AGAINST_MOTION = ("angle_dependent_friction", "stribeck_friction")   # a torque whose sign follows the motion
-DIRECTION_GROUP = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry",
-                   "stribeck_friction")                 # told apart by direction (open loops, direction_rivals)
+DIRECTION_GROUP = GROUP + ("stribeck_friction",)      # told apart by direction (open loops, direction_rivals)
 MARGIN_SHARE = 0.5    # a rival is close when its screening RSS drop is at least this share of the leader's
 GN_ITER = 2           # Gauss-Newton iterations of each family's table fit
 
@@ -195,7 +194,7 @@ def current_ms(fr: F.FitResult, data: Data) -> float | None:
 
 def voltage_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_min: float,
                  log=print) -> dict | None:
-    """Is the mismatch on the voltage side? ``leader`` (the best held-out angle gain) is a torque- or
+    """Is the mismatch on the voltage side? ``leader`` (the first candidate of the round: the best dBIC of those that pass the held-out gain) is a torque- or
     sensor-side candidate, and a voltage-side candidate (VOLTAGE_SIDE) screened significant (dBIC <
     -``bic_min``). An effect on the plate or the sensor changes the current only through the back-EMF of the
     motion it changes; an effect in the coil's voltage balance (a supply or bridge drop, a resistance, an
