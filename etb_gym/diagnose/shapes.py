@@ -364,7 +364,7 @@ def _row_info(data: Data):
     fold, is_angle = [], []
     for k, rd, m, kind in _layout(data, None, True):
         t = rd.rec.t_s
-        fold.append((np.floor((t - t[0]) / F.FOLD_BLOCK_S).astype(int) % 2))
+        fold.append((np.floor((t - t[0]) / F.fold_block_s(rd)).astype(int) % 2))   # fit.fold_masks' layout
         is_angle.append(np.full(t.size, kind == "angle"))
     return np.concatenate(fold), np.concatenate(is_angle)
 
