@@ -399,6 +399,10 @@ class PTOSController(CascadeController):
     this a 140 deg/s ramp was tracked 0.14 deg behind. While it moves away with little voltage headroom (the
     voltage that carries the plate along it above 1 - ``follow_headroom`` of the battery) the landing law does
     not brake the coil below the springs plus ``follow_current_floor`` of the friction (:meth:`follow_floor_duty`).
+    Near the battery's limit (the following voltage above 1 - ``tracking_headroom`` of it) a plate that moves
+    with the reference is steered onto it instead (:meth:`tracking_duty`: the duty that puts the predicted plate
+    on the reference ``tracking_horizon_periods`` on, never below the current carrying the springs plus
+    ``tracking_current_floor`` of the friction; ``tracking_zone_deg`` = 0 turns it off).
     The observer's speed gain (``observer_speed_gain``) falls as 1/RMS of the resting innovation beyond
     ``innovation_noise_deg`` (``observer_noise_schedule``): the sensor noise measured at rest.
     While the reference moves at a steady rate (ramps, pedal moves) the speed gain is
