@@ -372,16 +372,20 @@ def test_ptos_ramp_tracked_without_lag_at_low_battery_and_hot_coil():
     assert rms["nominal", ()] < 0.85 * rms[rest_gain], rms
 
 
+def following_ptos():
+    """A reset ptos following a 2.44 rad/s ramp at 12 V: (controller, model, predictor, torque constant)."""
+    c = make_controller("ptos")
+    c.reset(0)
+    c.V_now, c.r_rate = 12.0, 2.44
+    return c, c.model, c.predictor, c.model.torque_constant_Nm_per_A
+
+
 def test_ptos_follow_floor_keeps_the_coil_carrying_the_load_when_headroom_is_low():
     """Following a ramp (2.44 rad/s): at 20 deg with the nominal coil the following voltage (~4.6 V) is below
     ``follow_headroom`` (50 %) of the battery and the brake is left alone; at 75 deg with a hot coil (R x 1.41)
     it exceeds it, and a full-reverse brake is raised to the duty whose end current (the compiled model) holds
     the springs plus 0.8 of the friction; a duty above the floor is never lowered. The options are checked."""
-    c = make_controller("ptos")
-    c.reset(0)
-    m, p = c.model, c.predictor
-    k = m.torque_constant_Nm_per_A
-    c.V_now, c.r_rate = 12.0, 2.44
+    c, m, p, k = following_ptos()
     y = math.radians(20.0)
     i_hold = m.spring_torque_Nm(y) / k
     p.set_state(y, 2.3, i_hold + m.coulomb_Nm / k)
@@ -430,11 +434,7 @@ def test_ptos_tracking_mode_only_near_the_battery_limit_and_with_the_plate_movin
     the duty that puts the predicted plate on the reference two periods on (or the current floor, if higher),
     never braking the coil below the springs plus 0.9 of the friction; a plate 8 rad/s faster than the
     reference, or 0.4 deg off it, is left to the landing law. The options are checked."""
-    c = make_controller("ptos")
-    c.reset(0)
-    m, p = c.model, c.predictor
-    k = m.torque_constant_Nm_per_A
-    c.V_now, c.r_rate = 12.0, 2.44
+    c, m, p, k = following_ptos()
     y = math.radians(20.0)
     p.set_state(y, 2.44, (m.spring_torque_Nm(y) + m.coulomb_Nm) / k)
     assert c.tracking_duty(0.0, y, y) is None                        # headroom left: the landing law
