@@ -399,6 +399,10 @@ class PTOSController(CascadeController):
     this a 140 deg/s ramp was tracked 0.14 deg behind. While it moves away with little voltage headroom (the
     voltage that carries the plate along it above 1 - ``follow_headroom`` of the battery) the landing law does
     not brake the coil below the springs plus ``follow_current_floor`` of the friction (:meth:`follow_floor_duty`).
+    Near the battery's limit (the following voltage above 1 - ``tracking_headroom`` of it) a plate that moves
+    with the reference is steered onto it instead (:meth:`tracking_duty`: the duty that puts the predicted plate
+    on the reference ``tracking_horizon_periods`` on, never below the current carrying the springs plus
+    ``tracking_current_floor`` of the friction; ``tracking_zone_deg`` = 0 turns it off).
     The observer's speed gain (``observer_speed_gain``) falls as 1/RMS of the resting innovation beyond
     ``innovation_noise_deg`` (``observer_noise_schedule``): the sensor noise measured at rest.
     While the reference moves at a steady rate (ramps, pedal moves) the speed gain is
@@ -435,8 +439,19 @@ class PTOSController(CascadeController):
                  observer_tracking_speed_gain: float = 0.55,
                  observer_noise_schedule: bool = True, follow_current_floor: float = 0.8,
                  follow_headroom: float = 0.5, noisy_sensor_filter: bool = True,
-                 observer_torque_noise_Nm: float = 3.2e-4, **kw):
+                 observer_torque_noise_Nm: float = 3.2e-4, tracking_zone_deg: float = 0.3,
+                 tracking_headroom: float = 0.3, tracking_current_floor: float = 0.9,
+                 tracking_horizon_periods: int = 2, **kw):
         own = type(self).__name__
+        self.track_zone = math.radians(check_gain(own, "tracking_zone_deg", tracking_zone_deg, non_negative=True))
+        self.track_headroom = check_gain(own, "tracking_headroom", tracking_headroom, non_negative=True, upper=1.0001)
+        self.track_floor = check_gain(own, "tracking_current_floor", tracking_current_floor, non_negative=True,
+                                      upper=1.0001)
+        if isinstance(tracking_horizon_periods, bool) or not isinstance(tracking_horizon_periods, int) \
+                or tracking_horizon_periods < 1:
+            raise ValueError(f"{own}.tracking_horizon_periods = {tracking_horizon_periods!r} is invalid: expected an "
+                             "integer >= 1")
+        self.track_h = tracking_horizon_periods
         self.noise_settle = 0.02
         if not isinstance(noisy_sensor_filter, bool):
             raise ValueError(f"{own}: noisy_sensor_filter = {noisy_sensor_filter!r} is invalid: expected True or False")
@@ -504,6 +519,7 @@ class PTOSController(CascadeController):
         self.r_prev = None
         self.dr_prev = 0.0
         self.r_rate = 0.0
+        self.tracking_now = False
         if getattr(self, "predictor", None) is not None:
             self.predictor.reset()
         if getattr(self, "selftest", None) is not None:
@@ -624,6 +640,11 @@ class PTOSController(CascadeController):
         s = 1.0 if e > 0 else -1.0
         if self.landed_at is not None and abs(r_target - self.landed_at) > 1e-4:
             self.landed_at = None                   # a new target: a new move
+        self.tracking_now = False
+        if self.track_zone > 0 and self.r_rate != 0.0:
+            d = self.tracking_duty(e, y, r_target)
+            if d is not None:
+                return d
         far = abs(e) > (self.engage if self.landed_at is None else self.relaunch)
         if far or (self.landing and s * p.speed > self.rest_speed):
             i_hold = st.spring_level * m.spring_torque_Nm(r_target) / m.torque_constant_Nm_per_A
@@ -658,6 +679,52 @@ class PTOSController(CascadeController):
         self.landing = False
         return duty
 
+    def tracking_duty(self, e: float, y: float, r_target: float) -> float | None:
+        """The tracking mode (None outside it): following a reference that moves at a steady rate with little
+        voltage headroom -- the voltage that carries the plate along it, u_follow (:meth:`follow_voltage`), above
+        1 - ``tracking_headroom`` of the battery -- while the plate moves with it (|e| and the distance the speed
+        difference makes over the horizon, |r' - v| h T, both within ``tracking_zone_deg``): the duty which, held
+        for h = ``tracking_horizon_periods`` periods, puts the predicted plate (the compiled model from the
+        observer's state) on the reference at their end (:meth:`.predictive.StopPredictor.duty_to_reach`), raised
+        to the duty whose end current carries the springs plus ``tracking_current_floor`` of the friction.
+
+        Why: the landing law plans to *stop* the plate at an aim beyond the reference; on a plate slightly ahead it
+        brakes, the plate (J = 3e-5 kg m^2 against the friction) stops within a period and sticks, and the coil
+        regains the current to break it away only at (V - u_follow) / L -- with 0.5 V of headroom 25 A/s, against
+        a fall at (V + u_follow) / L. Near the battery's limit the cost of braking is that asymmetric, so there the
+        plate is steered onto the reference and never braked below the load it carries."""
+        p, st, m = self.predictor, self.tuning, self.model
+        h = self.track_h
+        if abs(e) >= self.track_zone or abs(self.r_rate - p.speed) * h * self.dt >= self.track_zone:
+            return None
+        sr = 1.0 if self.r_rate > 0 else -1.0
+        i_hold = st.spring_level * m.spring_torque_Nm(r_target) / m.torque_constant_Nm_per_A
+        if self.follow_voltage(sr, i_hold) <= (1.0 - self.track_headroom) * self.V_now:
+            return None
+        self.landing = True                         # when the reference stops, the landing law brings it to rest
+        self.I = 0.0
+        self.tracking_now = True
+        d = p.duty_to_reach(r_target + self.r_rate * (h - 1) * self.dt, h, self.V_now)
+        return self.current_floor_duty(d, sr, y, self.track_floor)
+
+    def follow_voltage(self, s: float, i_hold: float) -> float:
+        """s u_follow: the voltage (V) that carries the plate along the reference moving in direction s at its
+        rate, u_follow = R_hat (i_hold + s theta_f T_c / k) + k r', signed so that it is positive when the battery
+        has to supply it."""
+        m, st = self.model, self.tuning
+        k = m.torque_constant_Nm_per_A
+        return s * (st.resistance_ohm * (i_hold + s * st.friction_level * m.coulomb_Nm / k) + k * self.r_rate)
+
+    def current_floor_duty(self, d: float, s: float, y: float, floor: float) -> float:
+        """``d``, raised (in direction s) to the duty whose current at the end of the period (the compiled model,
+        :meth:`.predictive.StopPredictor.duty_for_current`) holds the springs at ``y`` plus ``floor`` of the
+        friction."""
+        m, st = self.model, self.tuning
+        i_goal = (st.spring_level * m.spring_torque_Nm(y) + s * floor * st.friction_level * m.coulomb_Nm) \
+            / m.torque_constant_Nm_per_A
+        d_floor = self.predictor.duty_for_current(i_goal, self.V_now)
+        return max(-1.0, min(1.0, d_floor)) if s * d_floor > s * d else d
+
     def follow_floor_duty(self, d: float, s: float, y: float, i_hold: float) -> float:
         """Following a reference that moves away (direction s) with little voltage headroom: the landing law
         plans to stop the plate at its aim, and on a plate slightly ahead it brakes the coil below the current
@@ -668,14 +735,9 @@ class PTOSController(CascadeController):
         current at the end of the period (the compiled model, :meth:`.predictive.StopPredictor.duty_for_current`)
         holds the springs plus ``follow_current_floor`` of the friction at the plate: it may slow the plate
         (at most (1 - floor) theta_f T_c / J) but not stop it."""
-        m, st = self.model, self.tuning
-        k = m.torque_constant_Nm_per_A
-        u_follow = st.resistance_ohm * (i_hold + s * st.friction_level * m.coulomb_Nm / k) + k * self.r_rate
-        if s * u_follow <= (1.0 - self.follow_headroom) * self.V_now:
+        if self.follow_voltage(s, i_hold) <= (1.0 - self.follow_headroom) * self.V_now:
             return d
-        i_goal = (st.spring_level * m.spring_torque_Nm(y) + s * self.follow_floor * st.friction_level * m.coulomb_Nm) / k
-        d_floor = self.predictor.duty_for_current(i_goal, self.V_now)
-        return max(-1.0, min(1.0, d_floor)) if s * d_floor > s * d else d
+        return self.current_floor_duty(d, s, y, self.follow_floor)
 
     def tracking_lead(self, r: float, s: float, i_hold: float, u_hold: float) -> float:
         """Distance (rad) a plate following the reference (at r, the reference's rate, the current holding the

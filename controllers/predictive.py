@@ -226,33 +226,54 @@ class StopPredictor:
         finally:
             self._x0[:] = saved
 
+    def angle_after(self, d: float, n: int, V: float) -> float:
+        """Angle (rad) of the plate after ``n`` periods at duty ``d`` from the set state."""
+        x = self._x
+        x[:] = self._x0
+        for _ in range(n):
+            self._step(x, d, V, self.P, 0.0, self.dt, self._nsub, self._switching, self._fpwm, self._aux)
+        return float(x[0])
+
+    def duty_to_reach(self, target: float, n: int, V: float, tolerance: float = 2e-5) -> float:
+        """The duty which, held for ``n`` periods from the set state, puts the plate on ``target`` (rad) at
+        their end (full drive or full reverse when none does): the angle is monotone in the duty, so the same
+        regula falsi as :meth:`duty_to_land`, within ``tolerance`` rad."""
+        return _monotone_root(lambda d: self.angle_after(d, n, V) - target, tolerance, self.iterations)
+
     def duty_to_land(self, target: float, s: float, V: float, i_hold: float, u_hold: float,
                      tolerance: float = 2e-4) -> float:
         """The duty of this period whose predicted stop lands on ``target`` (within ``tolerance`` rad; full
         drive or full reverse when none does): regula falsi (Illinois) on the predicted stop, which is monotone
         in the duty, at most ``iterations`` predictions after the two ends."""
-        f_hi = s * (self.stop_angle(s, s, V, i_hold, u_hold) - target)
-        if f_hi <= 0:
-            return s
-        f_lo = s * (self.stop_angle(-s, s, V, i_hold, u_hold) - target)
-        if f_lo >= 0:
-            return -s
-        lo, hi = -1.0, 1.0                     # in units of s: lo lands short (f < 0), hi overshoots (f > 0)
-        side = 0
-        d = lo
-        for _ in range(self.iterations):
-            d = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
-            f = s * (self.stop_angle(s * d, s, V, i_hold, u_hold) - target)
-            if abs(f) < tolerance:
-                break
-            if f > 0:
-                hi, f_hi = d, f
-                if side == 1:
-                    f_lo *= 0.5
-                side = 1
-            else:
-                lo, f_lo = d, f
-                if side == -1:
-                    f_hi *= 0.5
-                side = -1
-        return s * d
+        return s * _monotone_root(lambda d: s * (self.stop_angle(s * d, s, V, i_hold, u_hold) - target),
+                                  tolerance, self.iterations)
+
+
+def _monotone_root(f, tolerance: float, iterations: int) -> float:
+    """The d in [-1, 1] with f(d) = 0 for an increasing f: 1 when f(1) <= 0, -1 when f(-1) >= 0, else regula
+    falsi (Illinois) from the two ends until |f| < ``tolerance`` or after ``iterations`` evaluations."""
+    f_hi = f(1.0)
+    if f_hi <= 0:
+        return 1.0
+    f_lo = f(-1.0)
+    if f_lo >= 0:
+        return -1.0
+    lo, hi = -1.0, 1.0                     # lo: f < 0, hi: f > 0
+    side = 0
+    d = lo
+    for _ in range(iterations):
+        d = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+        fd = f(d)
+        if abs(fd) < tolerance:
+            break
+        if fd > 0:
+            hi, f_hi = d, fd
+            if side == 1:
+                f_lo *= 0.5
+            side = 1
+        else:
+            lo, f_lo = d, fd
+            if side == -1:
+                f_hi *= 0.5
+            side = -1
+    return d
