@@ -413,8 +413,12 @@ class PTOSController(CascadeController):
     On a sensor noisier than ``innovation_noise_deg`` (``noisy_sensor_filter``; the noise read at rest from
     the sensed angle's second difference, :meth:`measure_noise`) the observer carries a load torque and takes
     the steady-state Kalman gains of (angle, speed, load torque) for that noise
-    (:func:`.predictive.kalman_gains`, the torque a random walk of ``observer_torque_noise_Nm`` per period),
-    and the laws act on its angle instead of the sensed one.
+    (:func:`.predictive.kalman_gains`, the torque a random walk of ``observer_torque_noise_Nm`` per period,
+    ``observer_tracking_torque_noise_Nm`` while the reference moves at a steady rate: steady sliding, a slowly
+    changing load), and the laws act on its angle instead of the sensed one.
+
+    A plate ahead of a reference that moves towards it waits (``wait_for_reference``, :meth:`wait_duty`): the
+    landing law's reverse is never deeper than the duty whose end current holds the springs at the plate.
 
     The predictor's observer has a rest check (``rest_band_deg``, ``rest_check_speed_rad_s``): when the sensed
     angle has stayed within the band for two periods, an observer speed above the check speed is replaced by
