@@ -446,7 +446,8 @@ class PTOSController(CascadeController):
                  observer_torque_noise_Nm: float = 3.2e-4, observer_tracking_torque_noise_Nm: float = 2.5e-4,
                  tracking_zone_deg: float = 0.3,
                  tracking_headroom: float = 0.3, tracking_current_floor: float = 0.9,
-                 tracking_horizon_periods: int = 2, wait_for_reference: bool = True, **kw):
+                 tracking_horizon_periods: int = 2, wait_for_reference: bool = True,
+                 tracking_headroom_per_friction: bool = True, **kw):
         own = type(self).__name__
         self.track_zone = math.radians(check_gain(own, "tracking_zone_deg", tracking_zone_deg, non_negative=True))
         self.track_headroom = check_gain(own, "tracking_headroom", tracking_headroom, non_negative=True, upper=1.0001)
@@ -460,6 +461,10 @@ class PTOSController(CascadeController):
         if not isinstance(wait_for_reference, bool):
             raise ValueError(f"{own}: wait_for_reference = {wait_for_reference!r} is invalid: expected True or False")
         self.wait_for_reference = wait_for_reference
+        if not isinstance(tracking_headroom_per_friction, bool):
+            raise ValueError(f"{own}: tracking_headroom_per_friction = {tracking_headroom_per_friction!r} is invalid: "
+                             "expected True or False")
+        self.track_per_friction = tracking_headroom_per_friction
         self.noise_settle = 0.02
         if not isinstance(noisy_sensor_filter, bool):
             raise ValueError(f"{own}: noisy_sensor_filter = {noisy_sensor_filter!r} is invalid: expected True or False")
@@ -705,14 +710,20 @@ class PTOSController(CascadeController):
         brakes, the plate (J = 3e-5 kg m^2 against the friction) stops within a period and sticks, and the coil
         regains the current to break it away only at (V - u_follow) / L -- with 0.5 V of headroom 25 A/s, against
         a fall at (V + u_follow) / L. Near the battery's limit the cost of braking is that asymmetric, so there the
-        plate is steered onto the reference and never braked below the load it carries."""
+        plate is steered onto the reference and never braked below the load it carries.
+
+        With ``tracking_headroom_per_friction`` the headroom threshold is ``tracking_headroom`` times the learnt
+        friction level: a plate that stopped needs the coil to regain the static friction's share of the current,
+        theta_f times the nominal, at (V - u_follow) / L, so the time a stop costs grows with the friction as it
+        does with a smaller headroom (friction +50 %: the mode from 55 % of the battery instead of 70 %)."""
         p, st, m = self.predictor, self.tuning, self.model
         h = self.track_h
         if abs(e) >= self.track_zone or abs(self.r_rate - p.speed) * h * self.dt >= self.track_zone:
             return None
         sr = 1.0 if self.r_rate > 0 else -1.0
         i_hold = st.spring_level * m.spring_torque_Nm(r_target) / m.torque_constant_Nm_per_A
-        if self.follow_voltage(sr, i_hold) <= (1.0 - self.track_headroom) * self.V_now:
+        headroom = self.track_headroom * (st.friction_level if self.track_per_friction else 1.0)
+        if self.follow_voltage(sr, i_hold) <= (1.0 - headroom) * self.V_now:
             return None
         self.landing = True                         # when the reference stops, the landing law brings it to rest
         self.I = 0.0

@@ -603,3 +603,20 @@ def test_ptos_kalman_observer_takes_the_tracking_torque_noise_only_while_the_ref
     assert moving[1] < resting[1] and moving[2] < resting[2], (moving, resting)
     with pytest.raises(ValueError, match="observer_tracking_torque_noise_Nm"):
         make_controller("ptos", observer_tracking_torque_noise_Nm=-1e-4)
+
+
+def test_ptos_tracking_headroom_grows_with_the_learnt_friction():
+    """With tracking_headroom_per_friction the mode's headroom threshold is 0.3 x the friction level: at 50 deg
+    on the nominal coil, friction level 1.5, the following voltage is ~62 % of the battery -- inside 1 - 0.45,
+    so the mode acts; at level 1 (~54 %) or with the option off (threshold 70 %) the landing law keeps the
+    plate. The option is checked."""
+    c, m, p, k = following_ptos()
+    y = math.radians(50.0)
+    for level, per_friction, acts in ((1.5, True, True), (1.5, False, False), (1.0, True, False)):
+        c.track_per_friction = per_friction
+        c.tuning.friction_level = level
+        p.update_levels(c.tuning.resistance_ohm, level, 1.0)
+        p.set_state(y, 2.44, (m.spring_torque_Nm(y) + level * m.coulomb_Nm) / k)
+        assert (c.tracking_duty(0.0, y, y) is not None) == acts, (level, per_friction)
+    with pytest.raises(ValueError, match="tracking_headroom_per_friction"):
+        make_controller("ptos", tracking_headroom_per_friction="yes")
