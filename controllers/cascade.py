@@ -413,8 +413,12 @@ class PTOSController(CascadeController):
     On a sensor noisier than ``innovation_noise_deg`` (``noisy_sensor_filter``; the noise read at rest from
     the sensed angle's second difference, :meth:`measure_noise`) the observer carries a load torque and takes
     the steady-state Kalman gains of (angle, speed, load torque) for that noise
-    (:func:`.predictive.kalman_gains`, the torque a random walk of ``observer_torque_noise_Nm`` per period),
-    and the laws act on its angle instead of the sensed one.
+    (:func:`.predictive.kalman_gains`, the torque a random walk of ``observer_torque_noise_Nm`` per period,
+    ``observer_tracking_torque_noise_Nm`` while the reference moves at a steady rate: steady sliding, a slowly
+    changing load), and the laws act on its angle instead of the sensed one.
+
+    A plate ahead of a reference that moves towards it waits (``wait_for_reference``, :meth:`wait_duty`): the
+    landing law's reverse is never deeper than the duty whose end current holds the springs at the plate.
 
     The predictor's observer has a rest check (``rest_band_deg``, ``rest_check_speed_rad_s``): when the sensed
     angle has stayed within the band for two periods, an observer speed above the check speed is replaced by
@@ -439,9 +443,11 @@ class PTOSController(CascadeController):
                  observer_tracking_speed_gain: float = 0.55,
                  observer_noise_schedule: bool = True, follow_current_floor: float = 0.8,
                  follow_headroom: float = 0.5, noisy_sensor_filter: bool = True,
-                 observer_torque_noise_Nm: float = 3.2e-4, tracking_zone_deg: float = 0.3,
+                 observer_torque_noise_Nm: float = 3.2e-4, observer_tracking_torque_noise_Nm: float = 2.5e-4,
+                 tracking_zone_deg: float = 0.3,
                  tracking_headroom: float = 0.3, tracking_current_floor: float = 0.9,
-                 tracking_horizon_periods: int = 2, **kw):
+                 tracking_horizon_periods: int = 2, wait_for_reference: bool = True,
+                 tracking_headroom_per_friction: bool = True, **kw):
         own = type(self).__name__
         self.track_zone = math.radians(check_gain(own, "tracking_zone_deg", tracking_zone_deg, non_negative=True))
         self.track_headroom = check_gain(own, "tracking_headroom", tracking_headroom, non_negative=True, upper=1.0001)
@@ -452,11 +458,20 @@ class PTOSController(CascadeController):
             raise ValueError(f"{own}.tracking_horizon_periods = {tracking_horizon_periods!r} is invalid: expected an "
                              "integer >= 1")
         self.track_h = tracking_horizon_periods
+        if not isinstance(wait_for_reference, bool):
+            raise ValueError(f"{own}: wait_for_reference = {wait_for_reference!r} is invalid: expected True or False")
+        self.wait_for_reference = wait_for_reference
+        if not isinstance(tracking_headroom_per_friction, bool):
+            raise ValueError(f"{own}: tracking_headroom_per_friction = {tracking_headroom_per_friction!r} is invalid: "
+                             "expected True or False")
+        self.track_per_friction = tracking_headroom_per_friction
         self.noise_settle = 0.02
         if not isinstance(noisy_sensor_filter, bool):
             raise ValueError(f"{own}: noisy_sensor_filter = {noisy_sensor_filter!r} is invalid: expected True or False")
         self.noisy_filter = noisy_sensor_filter
         self.torque_noise = check_gain(own, "observer_torque_noise_Nm", observer_torque_noise_Nm, positive=True)
+        self.tracking_torque_noise = check_gain(own, "observer_tracking_torque_noise_Nm",
+                                                observer_tracking_torque_noise_Nm, positive=True)
         self.observer_angle_gain = check_gain(own, "observer_angle_gain", observer_angle_gain, non_negative=True,
                                               upper=1.0001)
         self.observer_speed_gain = check_gain(own, "observer_speed_gain", observer_speed_gain, non_negative=True,
@@ -562,7 +577,8 @@ class PTOSController(CascadeController):
         """Steady-state Kalman gains (angle, speed, load torque) for the sensor noise variance measured at rest
         (:meth:`measure_noise`), rounded to 5 % steps so each Riccati solution is computed once."""
         var = math.exp(round(math.log(max(self.noise_var, 1e-30)) * 20.0) / 20.0)
-        return kalman_gains(self.dt, self.model.inertia_kg_m2, var, self.torque_noise ** 2)
+        q = self.tracking_torque_noise if self.r_rate != 0.0 else self.torque_noise
+        return kalman_gains(self.dt, self.model.inertia_kg_m2, var, q ** 2)
 
     def measure_noise(self, y: float, r: float) -> None:
         """The angle sensor's noise variance, from the second difference of the sensed angle while the reference
@@ -673,6 +689,8 @@ class PTOSController(CascadeController):
                     d = max(-1.0, min(1.0, d_edge)) if s * d_edge > s * d else d
             if s * self.r_rate > 0 and self.follow_floor > 0:
                 d = self.follow_floor_duty(d, s, y, i_hold)
+            elif s * self.r_rate < 0:
+                d = self.wait_duty(d, s, y)
             return d
         if self.landing:                            # the predicted move has ended: the capture law finishes
             self.landed_at = r_target
@@ -692,20 +710,37 @@ class PTOSController(CascadeController):
         brakes, the plate (J = 3e-5 kg m^2 against the friction) stops within a period and sticks, and the coil
         regains the current to break it away only at (V - u_follow) / L -- with 0.5 V of headroom 25 A/s, against
         a fall at (V + u_follow) / L. Near the battery's limit the cost of braking is that asymmetric, so there the
-        plate is steered onto the reference and never braked below the load it carries."""
+        plate is steered onto the reference and never braked below the load it carries.
+
+        With ``tracking_headroom_per_friction`` the headroom threshold is ``tracking_headroom`` times the learnt
+        friction level: a plate that stopped needs the coil to regain the static friction's share of the current,
+        theta_f times the nominal, at (V - u_follow) / L, so the time a stop costs grows with the friction as it
+        does with a smaller headroom (friction +50 %: the mode from 55 % of the battery instead of 70 %)."""
         p, st, m = self.predictor, self.tuning, self.model
         h = self.track_h
         if abs(e) >= self.track_zone or abs(self.r_rate - p.speed) * h * self.dt >= self.track_zone:
             return None
         sr = 1.0 if self.r_rate > 0 else -1.0
         i_hold = st.spring_level * m.spring_torque_Nm(r_target) / m.torque_constant_Nm_per_A
-        if self.follow_voltage(sr, i_hold) <= (1.0 - self.track_headroom) * self.V_now:
+        headroom = self.track_headroom * (st.friction_level if self.track_per_friction else 1.0)
+        if self.follow_voltage(sr, i_hold) <= (1.0 - headroom) * self.V_now:
             return None
         self.landing = True                         # when the reference stops, the landing law brings it to rest
         self.I = 0.0
         self.tracking_now = True
         d = p.duty_to_reach(r_target + self.r_rate * (h - 1) * self.dt, h, self.V_now)
         return self.current_floor_duty(d, sr, y, self.track_floor)
+
+    def wait_duty(self, d: float, s: float, y: float) -> float:
+        """The plate ahead of a reference that moves towards it (the landing law's direction s against the
+        reference's rate): ``d``, raised against s to the duty whose current at the end of the period holds the
+        springs at ``y`` (``wait_for_reference``; :meth:`current_floor_duty` with no friction share). The landing
+        law plans a move back to a fixed target and reverses the coil; the reference, though, arrives by itself
+        (1 deg at 6 rad/s in 3 ms), and an emptied coil lets the springs pull the plate back, where it sticks and
+        needs the break-away current again (ETB-2B pedal at 9 V, seed 0: a tip-in overshot 1.1 deg, full reverse
+        drove the plate back at 4.6 rad/s, 2 deg behind the reference). Holding the springs, the plate stops on
+        its own friction and waits."""
+        return self.current_floor_duty(d, -s, y, 0.0) if self.wait_for_reference else d
 
     def follow_voltage(self, s: float, i_hold: float) -> float:
         """s u_follow: the voltage (V) that carries the plate along the reference moving in direction s at its

@@ -558,3 +558,65 @@ def test_ptos_noisy_sensor_gets_the_kalman_observer_and_acts_on_its_estimate():
         make_controller("ptos", noisy_sensor_filter="yes")
     with pytest.raises(ValueError, match="observer_torque_noise_Nm"):
         make_controller("ptos", observer_torque_noise_Nm=0.0)
+
+
+def test_ptos_waits_for_a_reference_moving_towards_a_plate_ahead():
+    """The plate 1 deg ahead of a ramp (2.44 rad/s) that moves towards it: the landing law's full reverse
+    (direction s = -1 against the rate) is raised to the duty whose end current (the compiled model) holds the
+    springs at the plate -- the coil is not emptied, the plate stops on its friction and waits; a duty above
+    that is left alone, and ``wait_for_reference=False`` leaves the brake. The option is checked."""
+    c, m, p, k = following_ptos()
+    y = math.radians(30.0)
+    i_spring = m.spring_torque_Nm(y) / k
+    p.set_state(y, 6.0, i_spring)              # one full-reverse period would take the coil below i_spring
+    d = c.wait_duty(-1.0, -1.0, y)
+    x, x_rev = p._x0.copy(), p._x0.copy()
+    m.plant.step(x, d, 12.0, P=p.P)
+    m.plant.step(x_rev, -1.0, 12.0, P=p.P)
+    # (duty_for_current interpolates two one-period predictions: within 0.1 A; full reverse: ~1 A lower)
+    assert -1.0 < d < 1.0 and x[2] == pytest.approx(i_spring, abs=0.1) and x_rev[2] < i_spring - 0.5, \
+        (d, x[2], x_rev[2], i_spring)
+    assert c.wait_duty(0.9, -1.0, y) == 0.9
+    c.wait_for_reference = False
+    assert c.wait_duty(-1.0, -1.0, y) == -1.0
+    with pytest.raises(ValueError, match="wait_for_reference"):
+        make_controller("ptos", wait_for_reference=1)
+
+
+def test_ptos_kalman_observer_takes_the_tracking_torque_noise_only_while_the_reference_moves():
+    """On the noisy sensor the observer's load torque is a random walk of observer_torque_noise_Nm (3.2e-4 N m)
+    at rest and on steps, of observer_tracking_torque_noise_Nm (2.5e-4) while the reference moves at a steady
+    rate (steady sliding: the load changes slowly): smaller speed and torque gains there. The option is
+    checked."""
+    from etb_gym.controllers.predictive import kalman_gains
+
+    c = make_controller("ptos")
+    c.reset(0)
+    c.noise_var = math.radians(0.05) ** 2
+    var = math.exp(round(math.log(c.noise_var) * 20.0) / 20.0)
+    c.r_rate = 0.0
+    resting = c.noisy_gains()
+    c.r_rate = 2.44
+    moving = c.noisy_gains()
+    J = c.model.inertia_kg_m2
+    assert resting == kalman_gains(c.dt, J, var, 3.2e-4 ** 2) and moving == kalman_gains(c.dt, J, var, 2.5e-4 ** 2)
+    assert moving[1] < resting[1] and moving[2] < resting[2], (moving, resting)
+    with pytest.raises(ValueError, match="observer_tracking_torque_noise_Nm"):
+        make_controller("ptos", observer_tracking_torque_noise_Nm=-1e-4)
+
+
+def test_ptos_tracking_headroom_grows_with_the_learnt_friction():
+    """With tracking_headroom_per_friction the mode's headroom threshold is 0.3 x the friction level: at 50 deg
+    on the nominal coil, friction level 1.5, the following voltage is ~62 % of the battery -- inside 1 - 0.45,
+    so the mode acts; at level 1 (~54 %) or with the option off (threshold 70 %) the landing law keeps the
+    plate. The option is checked."""
+    c, m, p, k = following_ptos()
+    y = math.radians(50.0)
+    for level, per_friction, acts in ((1.5, True, True), (1.5, False, False), (1.0, True, False)):
+        c.track_per_friction = per_friction
+        c.tuning.friction_level = level
+        p.update_levels(c.tuning.resistance_ohm, level, 1.0)
+        p.set_state(y, 2.44, (m.spring_torque_Nm(y) + level * m.coulomb_Nm) / k)
+        assert (c.tracking_duty(0.0, y, y) is not None) == acts, (level, per_friction)
+    with pytest.raises(ValueError, match="tracking_headroom_per_friction"):
+        make_controller("ptos", tracking_headroom_per_friction="yes")
