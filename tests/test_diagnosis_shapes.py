@@ -155,6 +155,40 @@ def test_detent_torque_is_reported_outside_the_catalogue_with_its_period(tmp_pat
 
 
 
+def test_a_periodic_torque_becomes_a_fourier_series_that_holds_beyond_the_recorded_angles(tmp_path):
+    """unmodelled.scan_period + fit_series on a sawtooth detent with a period unlike the proof's (7.5 deg; the
+    proof's are 10-30 deg) and a phase of its own, started 5 % off: the period is found within 1.5 %, and the
+    series' torque follows the truth's over the whole stroke, also at the angles the recording never visited
+    (a table falls back to zero there). The component reads back from a plant file; bad fields are named."""
+    from etb_gym.components.effects_periodic import PeriodicAngleTorque
+    from etb_gym.diagnose.shapes_eval import Cogging
+    P, phase = 7.5, math.radians(2.2)
+    cog = Cogging(amplitude_Nm=0.01, period_rad=math.radians(P), phase_rad=phase, waveform=0.0)
+    truth = make_plant("3B", substeps=40, effects=[cog])
+    rec = make_recording(truth, np.random.default_rng(2), duration_s=1.5, name="saw.csv")    # 3 .. 36 deg
+    data = prepare([rec], 12.0)
+    spec = Spec(make_plant("3B", substeps=20))
+    nominal = F.FitResult(spec, np.zeros(len(spec.params)), 1.0, 10, None, 0)
+    P0 = U.scan_period(nominal, data, 1.05 * P, 3, log=lambda *a: None)
+    s = U.fit_series(nominal, data, P0, ("angle",), 3, log=lambda *a: None)
+    comp = s.component
+    assert abs(np.degrees(comp.params.period_rad) - P) < 0.015 * P, np.degrees(comp.params.period_rad)
+    phi = np.radians(np.linspace(0.0, 89.9, 900))
+    seen = (np.histogram(rec.angle_deg, np.arange(0.0, 91.0))[0] >= 5)[np.degrees(phi).astype(int)]
+    assert (~seen).mean() > 0.4                       # the recording left a good part of the stroke unvisited
+    x = 2 * np.pi * (phi - phase) / np.radians(P)
+    true = 0.01 * 0.6 * sum((-1) ** (h + 1) * np.sin(h * x) / h for h in range(1, 7))
+    fitted = comp.torque(phi)
+    for m in (seen, ~seen):
+        assert np.corrcoef(fitted[m], true[m])[0, 1] > 0.85, m.mean()
+    q = load_plant(save_plant(make_plant("3B", effects=[comp]), tmp_path / "twin.toml"))
+    np.testing.assert_allclose(q.effects[0].torque(phi, 2.0), comp.torque(phi, 2.0))
+    with pytest.raises(ValueError, match=r"PeriodicAngleTorqueParams\.period_rad = -1\.0 .*> 0"):
+        PeriodicAngleTorque(period_rad=-1.0)
+    with pytest.raises(ValueError, match=r"sin_Nm_per_A .*one value per harmonic, as many as cos_Nm \(2\)"):
+        PeriodicAngleTorque(cos_Nm=(0.0, 0.0), sin_Nm=(0.0, 0.0), cos_Nm_per_A=(0.0, 0.0), sin_Nm_per_A=(0.0,))
+
+
 def test_knots_the_recordings_did_not_visit_are_anchored_to_the_formula():
     """A table is identified only where the recordings went. Knots with less than VISIT_MIN_S of hat-weighted
     time near them are pulled to 0 (the formula alone) instead of continuing the last visited slope to the stop
