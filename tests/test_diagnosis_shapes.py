@@ -130,7 +130,8 @@ def test_refined_airflow_table_beats_the_polynomial_on_a_gaussian_bump():
 
 def test_detent_torque_is_reported_outside_the_catalogue_with_its_period(tmp_path):
     """A periodic detent torque (not in the library): no catalogue effect is given, the report says
-    'outside the catalogue' with id unmodelled_torque and the period, the plant file keeps the table."""
+    'outside the catalogue' with id unmodelled_torque and the period, the plant file keeps it as a Fourier
+    series in angle (unmodelled.with_series), the fitted period the one reported."""
     from etb_gym.diagnose import diagnose
     from etb_gym.diagnose.shapes_eval import Cogging
     P = 16.0
@@ -146,7 +147,10 @@ def test_detent_torque_is_reported_outside_the_catalogue_with_its_period(tmp_pat
     assert u["shape"]["angle"]["periodic"] and abs(u["shape"]["angle"]["period_deg"] - P) < 0.1 * P, u["shape"]
     assert (tmp_path / "d" / "shapes.png").exists() and rep["shape_figures"] == ["shapes.png"]
     twin = load_plant(tmp_path / "d" / "calibrated_plant.toml")
-    assert any(e.kind == "effect.angle_torque_map" for e in twin.effects)
+    series = [e for e in twin.effects if e.kind == "effect.periodic_angle_torque"]
+    assert len(series) == 1 and list(u["tables"]) == ["unmodelled_periodic"], u["tables"]
+    assert math.degrees(series[0].params.period_rad) == pytest.approx(u["shape"]["angle"]["period_deg"])
+    assert u["shape"]["series"]["period_deg"] == pytest.approx(u["shape"]["angle"]["period_deg"])
     assert rep["rms_after_deg"] < 0.5 * rep["rms_before_deg"]
     assert res.verdict == "unexplained"
     st = rep["elapsed_breakdown_s"]                  # wall time per stage, the refine stage among them
