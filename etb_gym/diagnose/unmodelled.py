@@ -650,8 +650,18 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print) -> Gene
     P = float(d["period_deg"])
     H0, H1 = SERIES_HARMONICS
     P0 = scan_period(nominal, data, P, H0, log)
-    fits = [s for s in (fit_series(nominal, data, P0, (part,), H0, log=log) for part in SERIES_PARTS)
-            if s is not None]
+    fits = []
+    for part in SERIES_PARTS:     # from the scan's period and from the table's: the lower residual, then held-out
+        tries = [s for s in (fit_series(nominal, data, Q, (part,), H0, log=log, heldout=False)
+                             for Q in ((P0, P) if abs(P0 - P) > 1e-3 * P else (P0,))) if s is not None]
+        if tries:
+            s = min(tries, key=lambda s: s.fit.rss)
+            pf = Problem.make(s.fit.spec, s.fit.x, ("nominal", SERIES_ID))
+            s.heldout = heldout_error(pf, data)
+            if math.isfinite(s.heldout):
+                fits.append(s)
+                log(f"  Fourier series in angle ({part}, {H0} harmonics): period "
+                    f"{math.degrees(s.component.params.period_rad):.2f} deg, held-out {s.heldout:.3g}")
     if not fits:
         return g
     best = min(fits, key=lambda s: s.heldout)
