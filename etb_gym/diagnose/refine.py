@@ -64,7 +64,8 @@ class Outcome:
         panels = [(r.term, r.table(), f"{r.family_id}: shape learned from the data") for r in self.refinements if r.kept]
         if self.outside and self.generic is not None and self.generic.series is not None:
             g = self.generic
-            panels.append((None, g.series, f"outside the catalogue ({g.id}): {g.shape['series']['words']}"))
+            panels.append((None, g.series, f"outside the catalogue ({g.id}): Fourier series in angle, period "
+                                            f"{g.shape['series']['period_deg']:.2f} deg"))
         elif self.outside and self.generic is not None:
             g = self.generic
             for t in g.terms:
