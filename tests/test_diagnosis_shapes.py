@@ -130,7 +130,8 @@ def test_refined_airflow_table_beats_the_polynomial_on_a_gaussian_bump():
 
 def test_detent_torque_is_reported_outside_the_catalogue_with_its_period(tmp_path):
     """A periodic detent torque (not in the library): no catalogue effect is given, the report says
-    'outside the catalogue' with id unmodelled_torque and the period, the plant file keeps the table."""
+    'outside the catalogue' with id unmodelled_torque and the period, the plant file keeps it as a Fourier
+    series in angle (unmodelled.with_series), the fitted period the one reported."""
     from etb_gym.diagnose import diagnose
     from etb_gym.diagnose.shapes_eval import Cogging
     P = 16.0
@@ -146,13 +147,50 @@ def test_detent_torque_is_reported_outside_the_catalogue_with_its_period(tmp_pat
     assert u["shape"]["angle"]["periodic"] and abs(u["shape"]["angle"]["period_deg"] - P) < 0.1 * P, u["shape"]
     assert (tmp_path / "d" / "shapes.png").exists() and rep["shape_figures"] == ["shapes.png"]
     twin = load_plant(tmp_path / "d" / "calibrated_plant.toml")
-    assert any(e.kind == "effect.angle_torque_map" for e in twin.effects)
+    series = [e for e in twin.effects if e.kind == "effect.periodic_angle_torque"]
+    assert len(series) == 1 and list(u["tables"]) == ["unmodelled_periodic"], u["tables"]
+    assert math.degrees(series[0].params.period_rad) == pytest.approx(u["shape"]["angle"]["period_deg"])
+    assert u["shape"]["series"]["period_deg"] == pytest.approx(u["shape"]["angle"]["period_deg"])
     assert rep["rms_after_deg"] < 0.5 * rep["rms_before_deg"]
     assert res.verdict == "unexplained"
     st = rep["elapsed_breakdown_s"]                  # wall time per stage, the refine stage among them
     assert {"calibrate", "select", "refine", "report"} <= set(st) and all(v >= 0 for v in st.values())
     assert sum(st.values()) <= rep["elapsed_s"] + 5.0
 
+
+
+def test_a_periodic_torque_becomes_a_fourier_series_that_holds_beyond_the_recorded_angles(tmp_path):
+    """unmodelled.scan_period + fit_series on a sawtooth detent with a period unlike the proof's (7.5 deg; the
+    proof's are 10-30 deg) and a phase of its own, started 5 % off: the period is found within 1.5 %, and the
+    series' torque follows the truth's over the whole stroke, also at the angles the recording never visited
+    (a table falls back to zero there). The component reads back from a plant file; bad fields are named."""
+    from etb_gym.components.effects_periodic import PeriodicAngleTorque
+    from etb_gym.diagnose.shapes_eval import Cogging
+    P, phase = 7.5, math.radians(2.2)
+    cog = Cogging(amplitude_Nm=0.01, period_rad=math.radians(P), phase_rad=phase, waveform=0.0)
+    truth = make_plant("3B", substeps=40, effects=[cog])
+    rec = make_recording(truth, np.random.default_rng(2), duration_s=1.5, name="saw.csv")    # 3 .. 36 deg
+    data = prepare([rec], 12.0)
+    spec = Spec(make_plant("3B", substeps=20))
+    nominal = F.FitResult(spec, np.zeros(len(spec.params)), 1.0, 10, None, 0)
+    P0 = U.scan_period(nominal, data, 1.05 * P, 3, log=lambda *a: None)
+    s = U.fit_series(nominal, data, P0, ("angle",), 3, log=lambda *a: None)
+    comp = s.component
+    assert abs(np.degrees(comp.params.period_rad) - P) < 0.015 * P, np.degrees(comp.params.period_rad)
+    phi = np.radians(np.linspace(0.0, 89.9, 900))
+    seen = (np.histogram(rec.angle_deg, np.arange(0.0, 91.0))[0] >= 5)[np.degrees(phi).astype(int)]
+    assert (~seen).mean() > 0.4                       # the recording left a good part of the stroke unvisited
+    x = 2 * np.pi * (phi - phase) / np.radians(P)
+    true = 0.01 * 0.6 * sum((-1) ** (h + 1) * np.sin(h * x) / h for h in range(1, 7))
+    fitted = comp.torque(phi)
+    for m in (seen, ~seen):
+        assert np.corrcoef(fitted[m], true[m])[0, 1] > 0.85, m.mean()
+    q = load_plant(save_plant(make_plant("3B", effects=[comp]), tmp_path / "twin.toml"))
+    np.testing.assert_allclose(q.effects[0].torque(phi, 2.0), comp.torque(phi, 2.0))
+    with pytest.raises(ValueError, match=r"PeriodicAngleTorqueParams\.period_rad = -1\.0 .*> 0"):
+        PeriodicAngleTorque(period_rad=-1.0)
+    with pytest.raises(ValueError, match=r"sin_Nm_per_A .*one value per harmonic, as many as cos_Nm \(2\)"):
+        PeriodicAngleTorque(cos_Nm=(0.0, 0.0), sin_Nm=(0.0, 0.0), cos_Nm_per_A=(0.0, 0.0), sin_Nm_per_A=(0.0,))
 
 
 def test_knots_the_recordings_did_not_visit_are_anchored_to_the_formula():

@@ -43,15 +43,17 @@ class Outcome:
         unexplained = []
         if self.outside and self.generic is not None:
             g = self.generic
+            kept = {g.series.component.name: g.series.component} if g.series is not None else g.tables
             tables = {k: {"component": c.kind, **{f: list(v) if isinstance(v, tuple) else v
                                                   for f, v in c.params.to_dict().items()}}
-                      for k, c in g.tables.items()}
+                      for k, c in kept.items()}
             displaced = (f"; catalogue effects that fitted less well on held-out data: {', '.join(self.dropped)}"
                          if self.dropped else "")
             unexplained.append({"id": g.id, "recording": ", ".join(names), "where": "throughout",
                                 "rms_deg": rms_before_deg,
-                                "description": g.shape["summary"] + "; kept in the calibrated plant as tables "
-                                f"(held-out error {g.heldout:.3g} against {self.heldout_catalogue:.3g} for the "
+                                "description": g.shape["summary"] + "; kept in the calibrated plant as "
+                                + ("a Fourier series in angle " if g.series is not None else "tables ")
+                                + f"(held-out error {g.heldout:.3g} against {self.heldout_catalogue:.3g} for the "
                                 f"catalogue{displaced})",
                                 "outside_catalogue": True, "shape": g.shape, "tables": tables,
                                 "heldout_generic": g.heldout, "heldout_catalogue": self.heldout_catalogue})
@@ -60,7 +62,11 @@ class Outcome:
     def plot(self, path) -> str | None:
         """The learned tables on a matplotlib Agg canvas, written to ``path`` (None: nothing to draw)."""
         panels = [(r.term, r.table(), f"{r.family_id}: shape learned from the data") for r in self.refinements if r.kept]
-        if self.outside and self.generic is not None:
+        if self.outside and self.generic is not None and self.generic.series is not None:
+            g = self.generic
+            panels.append((None, g.series, f"outside the catalogue ({g.id}): Fourier series in angle, period "
+                                            f"{g.shape['series']['period_deg']:.2f} deg"))
+        elif self.outside and self.generic is not None:
             g = self.generic
             for t in g.terms:
                 if t.id in g.shape.get("significant_terms", []) or t.id == "unmodelled_angle":
@@ -76,7 +82,11 @@ class Outcome:
         fig = Figure(figsize=(7, 2.6 * len(panels)))
         FigureCanvasAgg(fig)
         for k, (t, tab, title) in enumerate(panels):
-            plot_table(fig.add_subplot(len(panels), 1, k + 1), t, tab, title)
+            if t is None:                      # a Fourier series (unmodelled.with_series)
+                from .unmodelled import plot_series
+                plot_series(fig.add_subplot(len(panels), 1, k + 1), tab, title)
+            else:
+                plot_table(fig.add_subplot(len(panels), 1, k + 1), t, tab, title)
         fig.tight_layout()
         from ..io import write_atomic
 
@@ -202,6 +212,7 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
         if gc.heldout < (1.0 - MIN_GAIN) * g.heldout and U.periodic_term(gc.shape) is not None:
             log(f"  the periodic torque scales with the current: held-out {gc.heldout:.3g} against {g.heldout:.3g}")
             g = gc
+        g = U.with_series(g, nominal, data, log=log)     # the periodic torque as a Fourier series in angle
     res.generic = g
     rms_nom = U._rms_deg(nominal.spec, nominal.x, data)
     if U.compare(g, h_cat, rms_nom, data) or _accounts(persistent, cur, g.fit, log):
