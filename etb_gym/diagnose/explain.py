@@ -11,9 +11,11 @@ One round:
               time blocks (fit on one, score the other); the current model is cross-validated the same way
   2a/2a'/2b   open loops: a voltage-side candidate first when it accounts for the current's residual
               (_voltage_side); a friction vs a torque that does not turn with the motion compared by converged
-              fits (_direction); close angle-torque rivals by their tables (_tell_apart, both loops)
+              fits (_direction); close angle-torque rivals by their tables (_tell_apart, both loops); a near
+              tie between a family acting at every angle and one with a region of action, by where the gain
+              lives (_region, both loops)
   3. accept   of the candidates whose held-out error beats the current model's by at least CV_MIN_GAIN,
-              the first in order of dBIC (after the physics' choice of 2a/2a'/2b; the two-fold held-out gain
+              the first in order of dBIC (after the physics' choice of 2a/2a'/2b/2c; the two-fold held-out gain
               gates, the likelihood on all the data ranks: measured, an angle-dependent friction at dBIC -629
               and +42 % held-out lost to an inductance saturation at dBIC -80 and +57 % on a closed loop), if,
               refitted on all the data, it lowers the RMS angle residual over the recordings by at least
@@ -301,6 +303,25 @@ def _tell_apart(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, g
     return evidence
 
 
+def _region(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float, rnd: int):
+    """Step 2c: a near tie between a leader acting at every angle and a family with a region of action (a stop's
+    contact, limp-home's free play, one side of limp-home): the local family is named when its gain lies inside
+    its region and the leader explains nothing outside it that the local one does not (discriminate.region_choice).
+    Returns the evidence and puts its choice first in ``gains``, or None."""
+    passing = [c for g, _, c, _ in gains if g >= CV_MIN_GAIN]
+    if len(passing) < 2:
+        return None
+    ctx.describe(f"round {rnd + 1}: where the gain lives")
+    try:
+        evidence = D.region_choice(ref, screened, gains[0][2], ctx.data, passing, BIC_MIN, ctx.log)
+    except (ValueError, TypeError, FloatingPointError, ZeroDivisionError, OverflowError) as e:
+        ctx.log(f"  where the gain lives: not compared ({e or type(e).__name__})")
+        return None
+    if evidence is not None:
+        _winner_first(ctx, cur, ref, screened, gains, cv0, evidence["winner"])
+    return evidence
+
+
 def _winner_first(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float, w: str):
     """The physics' choice ``w`` first in ``gains`` (cross-validated and added if it was not there)."""
     active = tuple(c.id for c in cur.spec.candidates)
@@ -410,7 +431,8 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
             passing.sort(key=lambda s: s[1])     # the held-out gain gates, the likelihood on all data ranks
             evidence = (_voltage_side(ctx, cur, ref, screened, passing, cv0, rnd)
                         or _direction(ctx, cur, ref, screened, passing, cv0, rnd)
-                        or _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd))
+                        or _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd)
+                        or _region(ctx, cur, ref, screened, passing, cv0, rnd))
             if resolves is not None:            # the others may still account for the structure
                 passing += sorted([g for g in gains if g not in passing], key=lambda s: s[1])
         elif resolves is not None:
