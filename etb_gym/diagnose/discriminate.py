@@ -270,6 +270,11 @@ def angle_parts(fr: F.FitResult, data: Data) -> tuple[np.ndarray, np.ndarray]:
     return r, np.radians(rec + r * noise)
 
 
+def _failed(r: np.ndarray) -> bool:
+    """A residual of a model that could not be simulated (fit.make_fun's FAIL)."""
+    return bool(np.any(np.abs(r) >= 0.5 * F.FAIL))
+
+
 def region_choice(ref: F.FitResult, screened: list, leader: str, data: Data, passing: list[str], bic_min: float,
                   log=print) -> dict | None:
     """A near tie between a ``leader`` that acts at every angle and a family with a region of action (REGION):
@@ -301,12 +306,16 @@ def region_choice(ref: F.FitResult, screened: list, leader: str, data: Data, pas
         return None
     r0, _ = angle_parts(ref, data)
     rg, _ = angle_parts(fits[leader], data)
+    if _failed(r0) or _failed(rg):
+        return None
     tau = max(fits[leader].tau_int, 1.0)
     for c in close:
         q = effect_params(fits[c], c)
         if q is None:
             continue
         rl, phi = angle_parts(fits[c], data)
+        if _failed(rl):
+            continue
         inside = np.asarray(REGION[c](q, phi), bool)
         drop = r0 ** 2 - rl ** 2
         total = float(drop.sum())
