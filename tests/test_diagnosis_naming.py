@@ -98,3 +98,22 @@ def test_a_table_whose_removal_moves_an_unresolved_structure_a_little_does_not_m
     shape = _describe({k: 0.0356 for k in ids}, dict(zip(ids, (8.6, 9.4, 9.7, 9.4))), 9.3,
                       lambda a: 0.004 * np.sin(2 * np.pi * a / 15.6))
     assert shape["significant_terms"] == []
+
+
+def test_near_the_noise_floor_halving_the_excess_accepts_in_open_loop(monkeypatch):
+    """explain._excess_down: a replay's RMS is the noise and the mismatch in quadrature, so a model within 1.27x
+    the noise cannot lower it by 10 % even when it removes the whole mismatch (measured: an asymmetric free play,
+    open loop, x0.91 refused at <= 0.90, its excess over the noise 0.28 -> 0.06). The excess must halve, and the
+    rule is for replays only (a closed loop's observer residual stays near the noise whatever the model)."""
+    from types import SimpleNamespace as NS
+
+    from etb_gym.diagnose import explain as E
+    ms = {"old": 1.28, "fit": 1.06, "bent": 1.20}          # mean squares in noise units
+    monkeypatch.setattr(E.F, "evaluate", lambda spec, data, x, with_current: np.full(100, np.sqrt(ms[x])))
+    fits = {k: NS(spec=None, x=k) for k in ms}
+    open_loop, closed = NS(recs=[NS(residual="replay")]), NS(recs=[NS(residual="observer")])
+    assert E._excess_down(fits["fit"], fits["old"], open_loop)        # excess 0.28 -> 0.06
+    assert not E._excess_down(fits["bent"], fits["old"], open_loop)   # 0.28 -> 0.20: not halved
+    assert not E._excess_down(fits["fit"], fits["old"], closed)
+    ms["old"] = 0.95                                                  # already below the noise floor: nothing to halve
+    assert not E._excess_down(fits["fit"], fits["old"], open_loop)

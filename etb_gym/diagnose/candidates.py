@@ -58,6 +58,9 @@ class Candidate:
     component: type | None = None          # an Effect class (ODE) or None (sensor side)
     ties: tuple = ()                       # ((effect field, plant key), ...)
     fixed: tuple = ()                      # ((effect field, value), ...)
+    # its small-parameter effect is, to first order, a change of a nominal parameter the calibration has already
+    # fitted: its scan re-solves the nominal parameters at each point in open loop too (fit.fit, profile_scan)
+    profiled: bool = False
 
     @property
     def sensor(self) -> bool:
@@ -156,7 +159,9 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
               ties=(("limp_home_rad", "spring.limp_home_rad"), ("preload_Nm", "spring.preload_Nm"),
                     ("rate_Nm_per_rad", "spring.rate_Nm_per_rad"),
                     ("limp_home_compliance_rad", "spring.limp_home_compliance_rad"),
-                    ("limp_home_damping_Nm_s_per_rad", "spring.limp_home_damping_Nm_s_per_rad"))),
+                    ("limp_home_damping_Nm_s_per_rad", "spring.limp_home_damping_Nm_s_per_rad")),
+              # outside the play the springs act at d - b sign d: exactly a preload lowered by R_F b
+              profiled=True),
     Candidate("end_stop_compliance", "mechanical", fx.EndStopCompliance.description,
               (P("open_rad", R(90.0), R(84.0), R(96.0), R(0.5), "rad", ref="open_stop_rad"),
                P("closed_rad", 0.0, R(-3.0), R(3.0), R(0.2), "rad", ref="closed_stop_rad"),

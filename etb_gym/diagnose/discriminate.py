@@ -38,7 +38,8 @@ SIGNATURE = {"shaft_flux_loss": "proportional to the current",
              "spring_asymmetry": "a function of the angle alone",
              "supply_drop": "a voltage drop over the current (the current's residual, not the torque's)",
              "coil_heating": "a resistance that rises with the dissipated heat (the current's residual)",
-             "inductance_saturation": "an inductance falling with the current (the current's transients)"}
+             "inductance_saturation": "an inductance falling with the current (the current's transients)",
+             "sensor_offset_gain": "a sensor map: shifts the reading at every angle"}
 AGAINST_MOTION = ("angle_dependent_friction", "stribeck_friction")   # a torque whose sign follows the motion
 DIRECTION_GROUP = GROUP + ("stribeck_friction",)      # told apart by direction (open loops, direction_rivals)
 MARGIN_SHARE = 0.5    # a rival is close when its screening RSS drop is at least this share of the leader's
@@ -234,3 +235,111 @@ def voltage_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_
             "rule": "an effect on the plate changes the current only through the back-EMF: a voltage-side candidate "
                     f"that accounts for at least {CURRENT_SHARE:.0%} of the current model's current residual (above "
                     f"the noise) and {CURRENT_DOMINANCE:g}x what the leader accounts for is named"}
+
+
+# ------------------------------------------------------------------------------------ where the gain lives
+# A family with a *region of action* changes the plate's torque only at some angles (beyond what the nominal
+# parameters it is fitted with can take up); a family without one (a sensor map, an airflow polynomial, a torque
+# constant) acts at every angle. The regions, as functions of the effect's parameters (its Params object, the
+# tied plant fields included) and the plate angle [rad]:
+#   end_stop_compliance  in contact with a stop: phi beyond the nearer of the fitted and the nominal stop angle
+#   spring_asymmetry     below limp-home (its kernel acts there only)
+#   backlash             within the play and its contact band, |phi - phi_LH| <= b + eps: outside it the play
+#                        acts as a lower preload (-R_F b sign d), which the calibrated preload takes up
+REGION = {
+    "end_stop_compliance": lambda q, phi: ((phi <= max(q.closed_rad, q.nominal_closed_rad))
+                                           | (phi >= min(q.open_rad, q.nominal_open_rad))),
+    "spring_asymmetry": lambda q, phi: phi < q.limp_home_rad,
+    "backlash": lambda q, phi: np.abs(phi - q.limp_home_rad) <= q.play_rad + q.limp_home_compliance_rad,
+}
+REGION_SHARE = 0.5    # the local family's gain lies at least this much inside its region (it explains where it acts)
+
+
+def effect_params(fr: F.FitResult, cid: str):
+    """The Params of effect ``cid`` in ``fr``'s model (tied plant fields filled in), or None."""
+    plant, _ = fr.spec.build(fr.x)
+    return next((e.params for e in plant.effects if getattr(e, "effect_id", None) == cid), None)
+
+
+def angle_parts(fr: F.FitResult, data: Data) -> tuple[np.ndarray, np.ndarray]:
+    """(normalized angle residual, the model's angle [rad]: the recorded angle plus its residual) of ``fr`` over
+    all recordings, stacked."""
+    r = F.evaluate(fr.spec, data, fr.x, with_current=False)
+    rec = np.concatenate([rd.rec.angle_deg for rd in data.recs])
+    noise = np.concatenate([np.full(rd.rec.n, rd.noise_deg) for rd in data.recs])
+    return r, np.radians(rec + r * noise)
+
+
+def _failed(r: np.ndarray) -> bool:
+    """A residual of a model that could not be simulated (fit.make_fun's FAIL)."""
+    return bool(np.any(np.abs(r) >= 0.5 * F.FAIL))
+
+
+def region_choice(ref: F.FitResult, screened: list, leader: str, data: Data, passing: list[str], bic_min: float,
+                  log=print) -> dict | None:
+    """A near tie between a ``leader`` that acts at every angle and a family with a region of action (REGION):
+    where does the gain live? ``passing``: the candidates that passed the held-out gain; a rival is close when it
+    passes too and its screening RSS drop is at least MARGIN_SHARE of the leader's.
+
+    For the rival L (its region M, on its own fitted model's angle) and the leader G, both screening fits against
+    the current model's refit ``ref`` (angle residuals only):
+      - L explains where it acts: at least REGION_SHARE of L's RSS drop lies inside M;
+      - G explains nothing outside M that L does not: outside M, G's RSS is not significantly below L's,
+        m_out / tau ln(RSS_out(L) / RSS_out(G)) < ``bic_min`` (tau: G's residual's integrated time).
+    Then L is named: the physics that acts only there accounts for all the data say, and the everywhere-acting
+    leader's claim about the other angles is not supported. A leader whose gain extends outside M (a real sensor
+    offset shifts every reading, at rest and in motion) stands. (Outside M, L still gains through what its torque
+    did to the motion that follows: a replay carries a contact's timing on; both fits carry that alike, which is
+    why the comparison is L against G outside M and not G's outside gain against zero.)
+    Measured: end_stop_compliance@2, random nameplate, open loop, seed 2 (a soft exponential bumper before the
+    open stop): sensor map dBIC -182, stop compliance -160, both +85 % held-out; 76 % of the stop's drop inside
+    its contact region, outside it RSS 7501 (sensor map) against 7551 (stop) over 5668 samples."""
+    if leader in REGION:
+        return None
+    rss = {c: fr.rss for _, c, fr in screened}
+    fits = {c: fr for _, c, fr in screened}
+    if leader not in rss or ref.rss - rss[leader] <= 0:
+        return None
+    close = [c for c in passing if c in REGION and c != leader and c in rss
+             and ref.rss - rss[c] >= MARGIN_SHARE * (ref.rss - rss[leader])]
+    if not close:
+        return None
+    r0, _ = angle_parts(ref, data)
+    rg, _ = angle_parts(fits[leader], data)
+    if _failed(r0) or _failed(rg):
+        return None
+    tau = max(fits[leader].tau_int, 1.0)
+    for c in close:
+        q = effect_params(fits[c], c)
+        if q is None:
+            continue
+        rl, phi = angle_parts(fits[c], data)
+        if _failed(rl):
+            continue
+        inside = np.asarray(REGION[c](q, phi), bool)
+        drop = r0 ** 2 - rl ** 2
+        total = float(drop.sum())
+        share = float(drop[inside].sum()) / total if total > 0 else 0.0
+        out_l, out_g = float(rl[~inside] @ rl[~inside]), float(rg[~inside] @ rg[~inside])
+        m_out = int(np.count_nonzero(~inside)) / tau
+        z = m_out * math.log(max(out_l, 1e-300) / max(out_g, 1e-300)) if m_out > 0 else 0.0
+        ok = share >= REGION_SHARE and z < bic_min
+        log(f"  where the gain lives: {c} {share:.0%} of its drop inside its region ({int(inside.sum())} samples); "
+            f"outside, RSS {leader} {out_g:.0f} against {c} {out_l:.0f} (dBIC-like {z:+.1f}) -> "
+            + (c if ok else f"{leader} stands"))
+        if ok:
+            return {"rivals": [leader], "winner": c,
+                    "region": {"share_inside": share, "samples_inside": int(inside.sum()),
+                               "rss_outside": {leader: out_g, c: out_l}, "outside_dbic": z},
+                    "signature": {leader: SIGNATURE.get(leader, "acts at every angle"),
+                                  c: REGION_SIGNATURE[c]},
+                    "rule": "a near tie between a family acting at every angle and one with a region of action: "
+                            f"when at least {REGION_SHARE:.0%} of the local family's gain lies inside its region and "
+                            "the other explains nothing outside it that the local one does not, the local one is "
+                            "named"}
+    return None
+
+
+REGION_SIGNATURE = {"end_stop_compliance": "acts only in contact with a stop",
+                    "spring_asymmetry": "acts only below limp-home",
+                    "backlash": "acts only within the free play around limp-home"}
