@@ -580,7 +580,7 @@ def anchor_unidentified(pb: Problem, J: np.ndarray, share: float = ID_MIN) -> Pr
             e = np.sum(J[:, cols] ** 2, axis=0)
             med = float(np.median(e))
             if med > 0.0:
-                new[cols[(e < share * med) & (anchor == 0)]] = 1.0
+                new[cols[(e < share * med) & (anchor[cols] == 0)]] = 1.0
         groups.append((D, ridge, new, hold))
     return dataclasses.replace(pb, groups=groups)
 
