@@ -25,7 +25,9 @@ Where the recordings did not go the table is not identified, and the roughness p
 the last visited slope (a straight line in the correction, out to the stop). Such knots (less than VISIT_MIN_S of
 hat-weighted time near them, :func:`visit_time_s`) are *anchored*: pulled to 0 with ANCHOR times the weight of a
 roughness row, so the twin falls back to the family's formula (or, for the generic tables, to the calibrated
-nominal model) outside the visited range. The same holds for knots the recordings visited without seeing them:
+nominal model) where the recordings did not go. Beyond the visited range a family's table over angle does not
+return to the formula but holds formula + table at its value at the last visited knot (:func:`hold_rows`): a
+formula fitted to part of the stroke is not extrapolated (docs/diagnosis.md, round 14). The same holds for knots the recordings visited without seeing them:
 where the plate sits against a stop or in the spring's limp-home band a torque change does not move it, so a
 knot whose Jacobian column has less than ID_MIN of its table's median energy (first linearization of
 :func:`fit_penalized`) is anchored as well (measured: an airflow plateau's table, free at the 0 and 6 deg knots,
