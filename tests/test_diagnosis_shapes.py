@@ -220,13 +220,49 @@ def test_knots_the_recordings_did_not_visit_are_anchored_to_the_formula():
     free_tab = np.zeros((r.size, pb.free.size))
     free_tab[:, :] = J
     d = S._solve(free_tab, r, pb, [1e-3])
-    plain = dataclasses.replace(pb, groups=[(D, ridge, np.zeros_like(a)) for D, ridge, a in pb.groups])
+    plain = dataclasses.replace(pb, groups=[(D, ridge, np.zeros_like(a), h) for D, ridge, a, h in pb.groups])
     d0 = S._solve(free_tab, r, plain, [1e-3])
     far = g > 60
     assert np.all(np.abs(d[far]) < 0.05), d
     assert np.all(d0[far] > 2.5), d0                                # without the anchor: the ramp continued
     assert np.allclose(d[seen], np.interp(g, [10, 30], [1.0, 2.0])[seen], atol=0.05)
 
+
+
+def test_beyond_the_visited_range_a_family_table_holds_the_formula_plus_table_at_the_edge():
+    """With the family's formula given, the knots beyond the range the recordings visited hold the family's
+    total (formula + table) at its value at the last visited knot, instead of the formula's own continuation
+    (an angle-dependent friction's quadratic, fitted on 10-30 deg, would add its curve out to the stops)."""
+    from etb_gym.components.effects_friction import AngleDependentFriction
+    from etb_gym.diagnose.model import prepare
+    from etb_gym.recordings import Recording
+    t = np.arange(3000) * 1e-3
+    ang = 20.0 + 10.0 * np.sin(2 * np.pi * 0.5 * t)                 # the plate stays within 10-30 deg
+    rec = Recording(name="part.csv", t_s=t, voltage_V=np.full(t.size, 2.0), angle_deg=ang, current_A=None,
+                    supply_V=None)
+    data = prepare([rec], 12.0)
+    base = make_plant("3B")
+    term = S.family_term("angle_dependent_friction", base, data)
+    formula = AngleDependentFriction(slope_Nm=0.04, curvature_Nm=0.12)
+    prof = S.formula_profile(formula, term)
+    x = term.grid / (0.5 * np.pi) - 0.5
+    assert np.allclose(prof, 0.04 * x + 0.12 * (x * x - 1.0 / 12.0), atol=1e-12)
+    g = np.degrees(term.grid)
+    n = term.n_coef
+    seen = (g >= 10) & (g <= 30)
+    r = -np.full(seen.sum(), 0.5)                                   # the data ask for 0.5 (normalized) there
+    spec = Spec(base).with_candidate(term.candidate())
+    x0 = np.zeros(len(Spec(base).params) + n)
+    pb = S.Problem.make(spec, x0, (term.id,), [term], data, formula=formula)
+    d = S._solve(np.eye(n)[seen], r, pb, [1e-3])
+    total = d * term.scale + prof
+    vis = S.visit_time_s(term, data) >= S.VISIT_MIN_S
+    lo, hi = np.flatnonzero(vis)[[0, -1]]
+    assert np.allclose(total[:lo], total[lo], atol=2e-4) and np.allclose(total[hi + 1:], total[hi], atol=2e-4), total
+    assert abs(prof[-1] - prof[hi]) > 0.05                          # where the formula alone would have gone
+    assert np.allclose(d[seen], 0.5, atol=0.05)
+    plain = S._solve(np.eye(n)[seen], r, S.Problem.make(spec, x0, (term.id,), [term], data), [1e-3])
+    assert np.all(np.abs(plain[~vis]) < 0.05)                       # without the formula: anchored to 0, as before
 
 def test_refined_airflow_table_leaves_the_torque_at_limp_home_to_the_spring():
     """A recording that barely visits limp-home .. 12 deg (open loop) sees the spring's preload and rate only as

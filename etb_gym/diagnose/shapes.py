@@ -25,7 +25,9 @@ Where the recordings did not go the table is not identified, and the roughness p
 the last visited slope (a straight line in the correction, out to the stop). Such knots (less than VISIT_MIN_S of
 hat-weighted time near them, :func:`visit_time_s`) are *anchored*: pulled to 0 with ANCHOR times the weight of a
 roughness row, so the twin falls back to the family's formula (or, for the generic tables, to the calibrated
-nominal model) outside the visited range. The same holds for knots the recordings visited without seeing them:
+nominal model) where the recordings did not go. Beyond the visited range a family's table over angle does not
+return to the formula but holds formula + table at its value at the last visited knot (:func:`hold_rows`): a
+formula fitted to part of the stroke is not extrapolated (docs/diagnosis.md, round 14). The same holds for knots the recordings visited without seeing them:
 where the plate sits against a stop or in the spring's limp-home band a torque change does not move it, so a
 knot whose Jacobian column has less than ID_MIN of its table's median energy (first linearization of
 :func:`fit_penalized`) is anchored as well (measured: an airflow plateau's table, free at the 0 and 6 deg knots,
@@ -302,13 +304,16 @@ class Problem:
     x: np.ndarray
     free: np.ndarray                      # indices into x
     groups: list                          # per table: (D rows over the free parameters, ridge mask over them,
-                                          #             anchor mask: knots the data did not visit)
+                                          #             anchor mask: 1 knots the data did not visit, -1 knots
+                                          #             held by hold_rows; (hold rows H, their targets b))
     prior: np.ndarray | None = None       # per free parameter: weight of its pull to x = 0 (the nameplate)
 
     @classmethod
-    def make(cls, spec: Spec, x, free_ids, terms=(), data: Data | None = None) -> "Problem":
+    def make(cls, spec: Spec, x, free_ids, terms=(), data: Data | None = None, formula=None) -> "Problem":
         """Free parameters: those whose owner is in ``free_ids`` ("nominal" and candidate ids). With ``data``,
-        the knots the recordings did not visit (:func:`visit_time_s` < VISIT_MIN_S) are anchored to 0."""
+        the knots the recordings did not visit (:func:`visit_time_s` < VISIT_MIN_S) are anchored to 0; with
+        ``formula`` too (the family's formula component the table corrects), those beyond the visited range
+        hold the family's total (formula + table) at its value at the last visited knot (:func:`hold_rows`)."""
         free = np.array([k for k, (o, _) in enumerate(spec.params) if o in free_ids], int)
         pos = {int(k): j for j, k in enumerate(free)}
         groups = []
@@ -324,21 +329,82 @@ class Problem:
                 ridge[pos[k]] = 1.0
                 if vis is not None and vis[j] < VISIT_MIN_S:
                     anchor[pos[k]] = 1.0
-            groups.append((D, ridge, anchor))
+            H, b = np.zeros((0, free.size)), np.zeros(0)
+            prof = formula_profile(formula, t) if formula is not None and vis is not None else None
+            if prof is not None:
+                rows, b, held = hold_rows(vis, prof / t.scale)
+                H = np.zeros((rows.shape[0], free.size))
+                for j, k in enumerate(idx):
+                    H[:, pos[k]] = rows[:, j]
+                    if held[j]:
+                        anchor[pos[k]] = -1.0          # held, never anchored to 0 (anchor_unidentified neither)
+            groups.append((D, ridge, anchor, (H, b)))
         return cls(spec, np.asarray(x, float), free, groups, nameplate_prior(spec, free))
 
     def penalty(self, lams) -> np.ndarray:
-        """The penalty's matrix sum_g lambda_g (D_g^T D_g + RIDGE diag(table_g) + ANCHOR diag(unvisited_g)) over
-        the free parameters."""
+        """The penalty's matrix sum_g lambda_g (D_g^T D_g + RIDGE diag(table_g) + ANCHOR (diag(unvisited_g) +
+        H_g^T H_g)) over the free parameters (H: the rows that hold a table's knots beyond the visited range)."""
         if getattr(self, "_unit_penalties", None) is None:       # each group's matrix at lambda = 1, once
-            self._unit_penalties = [D.T @ D + RIDGE * np.diag(ridge) + ANCHOR * np.diag(anchor)
-                                    for D, ridge, anchor in self.groups]
+            self._unit_penalties = [D.T @ D + RIDGE * np.diag(ridge) + ANCHOR * (np.diag(anchor > 0) + H.T @ H)
+                                    for D, ridge, anchor, (H, _) in self.groups]
         P = np.zeros((self.free.size, self.free.size))
         for lam, G in zip(lams, self._unit_penalties):
             P += lam * G
         if self.prior is not None:
             P += np.diag(self.prior)
         return P
+
+    def pull(self, lams) -> np.ndarray:
+        """The penalty's linear part: sum_g lambda_g ANCHOR H_g^T b_g (the held knots' targets); the penalty is
+        theta^T P theta - 2 pull^T theta + const."""
+        q = np.zeros(self.free.size)
+        for lam, (_, _, _, (H, b)) in zip(lams, self.groups):
+            if b.size:
+                q += lam * ANCHOR * (H.T @ b)
+        return q
+
+
+def formula_profile(comp, term: "MapTerm") -> np.ndarray | None:
+    """The family formula ``comp``'s contribution on ``term``'s knots, in the table's quantity (a torque, a
+    friction level, a torque-constant change over angle), where the formula is a function of the table's angle
+    alone; None otherwise. Measured through the kernels: the formula's output over the output of the table with
+    1 at every knot, at rest (omega 0, the current 1 A, a bristle fully deflected: its presliding distance, the
+    last parameter of every unit-bristle component)."""
+    if comp is None or term.cls.grid_field != "angle_rad" or len(term.value_fields) != 1:
+        return None
+    unit = term.component(np.ones(term.n_coef))
+    out = np.zeros(term.grid.size)
+    pf, pu = comp.param_vector(), unit.param_vector()
+    ds = np.zeros(max(len(comp.state_names), len(unit.state_names), 1))
+    for k, phi in enumerate(term.grid):
+        f = comp.kernel(0.0, float(phi), 0.0, 1.0, 0.0, np.array([pf[-1]] * ds.size), pf, ds)
+        u = unit.kernel(0.0, float(phi), 0.0, 1.0, 0.0, np.array([pu[-1]] * ds.size), pu, ds)
+        j = int(np.argmax(np.abs(u[:2])))
+        if not np.all(np.isfinite(f)) or abs(u[j]) < 1e-12:
+            return None
+        out[k] = f[j] / u[j]
+    return out
+
+
+def hold_rows(visit_s: np.ndarray, prof: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows (over one table's knots), targets and the held mask that hold the family's total, formula ``prof`` +
+    table, at its value at the first / last visited knot for every knot beyond it (normalized units): a formula
+    fitted on part of the stroke is not extrapolated where the recordings did not go (an angle-dependent
+    friction's quadratic added 0.13 N m at the open stop, 65 % of the friction, where the data ended 12 deg
+    before; docs/diagnosis.md, round 14)."""
+    n = prof.size
+    seen = np.flatnonzero(np.asarray(visit_s[:n]) >= VISIT_MIN_S)
+    held = np.zeros(n, bool)
+    rows, b = [], []
+    if seen.size:
+        for k in list(range(0, seen[0])) + list(range(seen[-1] + 1, n)):
+            e = seen[0] if k < seen[0] else seen[-1]
+            r = np.zeros(n)
+            r[k], r[e] = 1.0, -1.0
+            rows.append(r)
+            b.append(prof[e] - prof[k])
+            held[k] = True
+    return (np.array(rows).reshape(-1, n), np.array(b), held)
 
 
 NOMINAL_PRIOR = 0.2      # the calibrated nominal parameters' spread about the nameplate (relative, one sigma)
@@ -409,7 +475,7 @@ def _penalty_scales(J: np.ndarray, pb: Problem) -> list:
     """Per table: mean squared Jacobian column over mean squared roughness column, so that a relative
     weight of 1 balances the data and the roughness whatever the table's units."""
     out = []
-    for D, ridge, _ in pb.groups:
+    for D, ridge, _, _ in pb.groups:
         m = ridge > 0
         jj = float(np.mean(np.sum(J[:, m] ** 2, axis=0))) if m.any() else 1.0
         dd = float(np.mean(np.sum(D[:, m] ** 2, axis=0))) if m.any() and D.size else 1.0
@@ -429,11 +495,12 @@ def _solve_gram(A, g, pb: Problem, lams, theta=None, damping: float = 0.0):
     theta = pb.x[pb.free] if theta is None else theta
     s = max(float(np.mean(np.diag(A))), 1e-12)
     P = pb.penalty(lams)
+    rhs = -(g + P @ theta - pb.pull(lams))
     A2 = A + P + damping * np.diag(np.diag(A)) + 1e-9 * s * np.eye(A.shape[0])
     try:
-        return np.linalg.solve(A2, -(g + P @ theta))
+        return np.linalg.solve(A2, rhs)
     except np.linalg.LinAlgError:
-        return np.linalg.lstsq(A2, -(g + P @ theta), rcond=None)[0]
+        return np.linalg.lstsq(A2, rhs, rcond=None)[0]
 
 
 def _solve(J, r, pb: Problem, lams, rows=None, theta=None, damping: float = 0.0):
@@ -448,7 +515,7 @@ def _clip(pb: Problem, x):
 
 
 def _objective(pb: Problem, r: np.ndarray, theta: np.ndarray, lams) -> float:
-    return float(r @ r) + float(theta @ pb.penalty(lams) @ theta)
+    return float(r @ r) + float(theta @ pb.penalty(lams) @ theta) - 2.0 * float(pb.pull(lams) @ theta)
 
 
 class _Folds:
@@ -508,15 +575,15 @@ def anchor_unidentified(pb: Problem, J: np.ndarray, share: float = ID_MIN) -> Pr
     """``pb`` with every table knot whose Jacobian column (``J`` over pb.free) has less than ``share`` of its
     table's median column energy anchored to 0 (in addition to the knots the recordings did not visit)."""
     groups = []
-    for D, ridge, anchor in pb.groups:
+    for D, ridge, anchor, hold in pb.groups:
         cols = np.flatnonzero(ridge > 0)
         new = anchor.copy()
         if cols.size:
             e = np.sum(J[:, cols] ** 2, axis=0)
             med = float(np.median(e))
             if med > 0.0:
-                new[cols[e < share * med]] = 1.0
-        groups.append((D, ridge, new))
+                new[cols[(e < share * med) & (anchor[cols] == 0)]] = 1.0
+        groups.append((D, ridge, new, hold))
     return dataclasses.replace(pb, groups=groups)
 
 
@@ -618,6 +685,12 @@ class Refinement:
         return {"component": comp.kind, **{k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}}
 
 
+def _formula_component(fr: F.FitResult, cid: str):
+    """The fitted formula component of candidate ``cid`` in ``fr``'s model (None if it has none)."""
+    plant, _ = fr.spec.build(fr.x)
+    return next((e for e in plant.effects if getattr(e, "effect_id", None) == cid), None)
+
+
 def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refinement | None:
     """Refine accepted candidate ``cid`` of ``final`` by its table (None: no table form for the family); with
     several table forms (:func:`family_terms`) the one with the lowest held-out error."""
@@ -635,10 +708,11 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refine
     if not data.continuity and any(rd.residual == "replay" for rd in data.recs):
         views.append(dataclasses.replace(data, continuity=True))
     best = None
+    comp = _formula_component(final, cid)
     for term in terms:
         spec_m = final.spec.with_candidate(term.candidate())
         x0 = np.concatenate([final.x, np.zeros(term.n_coef)])
-        pb = Problem.make(spec_m, x0, ("nominal", term.id), [term], data)
+        pb = Problem.make(spec_m, x0, ("nominal", term.id), [term], data, formula=comp)
         h_map, pf = math.inf, None
         for view in views:
             pf_v = fit_penalized(pb, view, log=None)
