@@ -337,3 +337,43 @@ def test_a_family_table_is_fitted_on_both_views_of_an_open_loop_replay(monkeypat
     seen.clear()
     ref = S.refine_family(fr, "airflow_torque", data, log=lambda *a: None)
     assert seen == [True] and ref.heldout_map == 0.5
+
+
+def test_a_friction_table_leaves_the_level_to_the_nominal_coulomb_friction():
+    """A constant in an angle-dependent friction (formula + table) and the nominal Coulomb level are the same to
+    sliding data, but the static friction follows the Coulomb level. With the Coulomb level free, the family's
+    total has zero mean over the visited knots: a formula's offset goes to the Coulomb level, not the break-away's
+    ratio (without the Coulomb level free, as before: the table alone follows the data)."""
+    from etb_gym.components.effects_friction import AngleDependentFriction
+    from etb_gym.diagnose.model import prepare
+    from etb_gym.recordings import Recording
+    t = np.arange(3000) * 1e-3
+    ang = 20.0 + 10.0 * np.sin(2 * np.pi * 0.5 * t)                 # the plate stays within 10-30 deg
+    rec = Recording(name="part.csv", t_s=t, voltage_V=np.full(t.size, 2.0), angle_deg=ang, current_A=None,
+                    supply_V=None)
+    data = prepare([rec], 12.0)
+    base = make_plant("3B")
+    term = S.family_term("angle_dependent_friction", base, data)
+    formula = AngleDependentFriction(slope_Nm=0.04, curvature_Nm=0.12)
+    prof = S.formula_profile(formula, term)
+    vis = S.visit_time_s(term, data) >= S.VISIT_MIN_S
+    spec = Spec(base).with_candidate(term.candidate())
+    x0 = np.zeros(len(spec.params))
+    pb = S.Problem.make(spec, x0, ("nominal", term.id), [term], data, formula=formula)
+    names = [spec.params[k][1].name for k in pb.free]
+    jc = names.index("friction.coulomb_Nm")
+    cs = spec.params[pb.free[jc]][1].scale                         # N m per normalized unit of the Coulomb level
+    tab = np.array([spec.params[k][0] == term.id for k in pb.free])
+    want = 0.01 + 0.002 * np.arange(vis.sum())                      # the data's extra level [N m] on the visited knots
+    J = np.zeros((vis.sum(), pb.free.size))
+    J[:, np.flatnonzero(tab)[vis]] = np.eye(vis.sum()) * term.scale * 1e3
+    J[:, jc] = cs * 1e3
+    r = -(want - prof[vis]) * 1e3                                   # residual of the formula alone (mN m)
+    d = S._solve(J, r, pb, [1e-2 * S._penalty_scales(J, pb)[0]])  # a roughness weight the data dominate
+    dev = prof + d[tab] * term.scale                                # the family's total deviation
+    assert abs(np.mean(dev[vis])) < 1e-4, dev
+    assert d[jc] * cs == pytest.approx(np.mean(want), abs=5e-4)    # the Coulomb level took the offset
+    assert np.allclose(dev[vis] + d[jc] * cs, want, atol=5e-4)     # and the total level is the data's
+    plain = S.Problem.make(spec, x0, (term.id,), [term], data, formula=formula)
+    d0 = S._solve(np.eye(vis.sum(), term.n_coef, k=int(np.flatnonzero(vis)[0])) * term.scale * 1e3, r, plain, [1e-3])
+    assert abs(np.mean(prof[vis] + d0[vis] * term.scale) - np.mean(want)) < 5e-4
