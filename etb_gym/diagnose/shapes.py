@@ -313,14 +313,10 @@ class Problem:
         """Free parameters: those whose owner is in ``free_ids`` ("nominal" and candidate ids). With ``data``,
         the knots the recordings did not visit (:func:`visit_time_s` < VISIT_MIN_S) are anchored to 0; with
         ``formula`` too (the family's formula component the table corrects), those beyond the visited range
-        hold the family's total (formula + table) at its value at the last visited knot (:func:`hold_rows`), and
-        a friction level's total has zero mean over the visited knots while the nominal Coulomb level is free
-        (:func:`mean_row`)."""
+        hold the family's total (formula + table) at its value at the last visited knot (:func:`hold_rows`)."""
         free = np.array([k for k, (o, _) in enumerate(spec.params) if o in free_ids], int)
         pos = {int(k): j for j, k in enumerate(free)}
         groups = []
-        level_free = any(spec.params[k][0] == "nominal" and spec.params[k][1].name == "friction.coulomb_Nm"
-                         for k in free)
         for t in terms:
             idx = [k for k, (o, _) in enumerate(spec.params) if o == t.id]
             R = t.roughness()
@@ -337,9 +333,6 @@ class Problem:
             prof = formula_profile(formula, t) if formula is not None and vis is not None else None
             if prof is not None:
                 rows, b, held = hold_rows(vis, prof / t.scale)
-                if t.family == "friction" and level_free:  # the level stays with the nominal's friction
-                    m_row, m_b = mean_row(vis, prof / t.scale)
-                    rows, b = np.vstack([rows, m_row]), np.append(b, m_b)
                 H = np.zeros((rows.shape[0], free.size))
                 for j, k in enumerate(idx):
                     H[:, pos[k]] = rows[:, j]
@@ -412,22 +405,6 @@ def hold_rows(visit_s: np.ndarray, prof: np.ndarray) -> tuple[np.ndarray, np.nda
             b.append(prof[e] - prof[k])
             held[k] = True
     return (np.array(rows).reshape(-1, n), np.array(b), held)
-
-
-def mean_row(visit_s: np.ndarray, prof: np.ndarray) -> tuple[np.ndarray, float]:
-    """One row (over one table's knots) and its target that set the mean of the family's deviation, formula
-    ``prof`` + table, over the visited knots to 0 (normalized units). For a friction level over angle: a
-    constant in the deviation and the nominal Coulomb level are one and the same to the sliding data, but the
-    static friction follows the Coulomb level (``candidates.nominal_params``), so a formula's offset left in the
-    Coulomb level moves the break-away (angle_dependent_friction@1: Coulomb 0.215 against the truth's
-    0.177 N m, the formula -0.038 N m over most of the stroke; docs/diagnosis.md, round 14b)."""
-    n = prof.size
-    seen = np.asarray(visit_s[:n]) >= VISIT_MIN_S
-    r = np.zeros(n)
-    if not seen.any():
-        return r, 0.0
-    r[seen] = 1.0 / seen.sum()
-    return r, -float(np.mean(prof[seen]))
 
 
 NOMINAL_PRIOR = 0.2      # the calibrated nominal parameters' spread about the nameplate (relative, one sigma)
