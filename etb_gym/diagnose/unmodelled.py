@@ -217,7 +217,7 @@ def equation_error_seed(base_spec: Spec, x_nom: np.ndarray, terms: list, data: D
         return None
     A, y = np.concatenate(rows), np.concatenate(rhs)
     na, nc = len(ta.grid), len(tc.grid)
-    if y.size < 2 * (n_nom + na + nc):
+    if y.size < A.shape[1]:
         return None
     G = A.T @ A
     d = np.diag(G)
