@@ -197,9 +197,9 @@ def test_equation_error_seed_finds_a_current_ripple_without_simulating():
     """unmodelled.equation_error_seed (the start of the generic tables when output error takes no step): from
     the measured angle's smoothed derivatives and the measured current alone, a ripple a i sin(2 pi phi/P + psi)
     (a period unlike the proof's, two harmonics) shows in the fine current table with its period within 5 % and
-    its waveform (correlation with the truth's per-ampere torque at the identified knots, 0.64 here: a start for the
-    output-error fit, not its result), and the angle table
-    stays small (the ripple is not mistaken for a torque of the angle alone)."""
+    its waveform (correlation with the truth's per-ampere torque at the identified knots, 0.64 here: a start for
+    the output-error fit, not its result), and the angle table stays small (the ripple is not mistaken for a
+    torque of the angle alone)."""
     from etb_gym.components.effects_periodic import PeriodicAngleTorque
     P = 8.0
     rip = PeriodicAngleTorque(period_rad=math.radians(P), cos_Nm=(0.0, 0.0), sin_Nm=(0.0, 0.0),
