@@ -93,13 +93,18 @@ def fit_generic(nominal: F.FitResult, data: Data, log=print, current_fine: bool 
     removed (the loop holds the angle, so removing a table barely moves the angle's RMS)."""
     base_spec = Spec(nominal.spec.base, (), nominal.spec.nominal)
     x_nom = np.asarray(nominal.x, float)[:len(base_spec.params)]
-    terms = generic_terms(base_spec.base, data, current_fine=current_fine)
-    spec = base_spec
-    for t in terms:
-        spec = spec.with_candidate(t.candidate())
-    x0 = np.concatenate([x_nom, np.zeros(sum(t.n_coef for t in terms))])
-    pb = Problem.make(spec, x0, ("nominal",) + tuple(t.id for t in terms), terms, data)
-    pf = fit_penalized(pb, data, iters=GN_ITER)
+    terms, spec, pb, pf = _fit_tables(base_spec, x_nom, data, current_fine)
+    if not np.any(pf.fit.x[x_nom.size:]):        # output error took no step: start from the equation error
+        rss0 = pf.fit.rss
+        for fine in (current_fine,) if current_fine else (False, True):
+            seeded = _fit_tables(base_spec, x_nom, data, fine, seed=True)
+            if seeded is None:
+                continue
+            log(f"  outside the catalogue: output error took no step from the nominal model (RSS {rss0:.4g}); "
+                f"from the equation error's start ({'fine' if fine else 'coarse'} current table) RSS "
+                f"{seeded[3].fit.rss:.4g}" + (" (kept)" if seeded[3].fit.rss < pf.fit.rss else " (not kept)"))
+            if seeded[3].fit.rss < pf.fit.rss:
+                terms, spec, pb, pf = seeded
     pbf = dataclasses.replace(pf.problem, x=pf.fit.x)
     h = heldout_error(pbf, data, pf.lams, pf.jac)
     vals = spec.values(pf.fit.x)
@@ -123,6 +128,134 @@ def fit_generic(nominal: F.FitResult, data: Data, log=print, current_fine: bool 
            + ")" if z is not None else "")
         + f"; angle table's best period {a['period_deg'] or 0:.1f} deg, R2 {a['periodic_r2']:.2f}; {g.shape['summary']}")
     return g
+
+
+EQ_WINDOW_S = 0.021     # the smoothing window of the angle's derivatives (Savitzky-Golay, cubic)
+EQ_MOVING_RAD_S = 0.5   # samples moving faster than this (friction is then a level, not a bristle's state)
+EQ_STOP_MARGIN_RAD = math.radians(1.0)   # ... and this far from the stops
+EQ_ROUGHNESS = 1e-3     # the second differences' weight, relative to the table's mean Gram diagonal
+
+
+def _hats(x: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """The piecewise-linear interpolation's basis (effects_maps.table_lookup, clamped) at ``x``."""
+    B = np.zeros((x.size, grid.size))
+    xc = np.clip(x, grid[0], grid[-1])
+    k = np.clip(np.searchsorted(grid, xc, side="right") - 1, 0, grid.size - 2)
+    f = (xc - grid[k]) / (grid[k + 1] - grid[k])
+    rows = np.arange(x.size)
+    B[rows, k] = 1.0 - f
+    B[rows, k + 1] = f
+    return B
+
+
+def _stateless_torque(plant, phi, om, cur) -> np.ndarray:
+    """The summed torque of the plant's stateless components (drive, spring, stops, ...) at given states."""
+    from ..jit import py_func
+    out = np.zeros(phi.size)
+    for c in plant.components:
+        if c.state_names or getattr(c, "carry", None) is not None:
+            continue
+        kern, p, s = py_func(c.kernel), np.asarray(c.param_vector(), float), np.zeros(0)
+        out += [kern(0.0, float(a), float(b), float(i), 0.0, s, p, s)[0] for a, b, i in zip(phi, om, cur)]
+    return out
+
+
+def equation_error_seed(base_spec: Spec, x_nom: np.ndarray, terms: list, data: Data) -> np.ndarray | None:
+    """A start for the nominal parameters and the generic tables by equation error (normalized x of the Spec
+    with the tables): on the moving samples, the torque balance J phi'' = sum of the stateless components'
+    torques (drive, spring, stops) at the measured angle, its smoothed derivative and the measured current,
+    plus the friction (a Coulomb and a viscous level: its bristle state is not measured), plus the tables
+    (the angle table's basis, the current table's basis times the current), linearized in the nominal
+    parameters (finite differences of those torques), solved by least squares with a roughness penalty on the
+    tables. For a replay that drifts far from the recording from the first step, where output error's
+    linearization does not reach (issue #15: a current ripple 770x the noise). None when no recording has a
+    measured current or too few moving samples."""
+    from scipy.signal import savgol_filter
+    names = [t.id for t in terms]
+    if "unmodelled_angle" not in names or "unmodelled_current" not in names:
+        return None
+    ta, tc = terms[names.index("unmodelled_angle")], terms[names.index("unmodelled_current")]
+    lo, hi = float(ta.grid[0]), float(ta.grid[-1])
+    n_nom = x_nom.size
+    plants = [base_spec.build(x_nom)[0]]
+    for j in range(n_nom):                       # one normalized unit up, each nominal parameter
+        x = x_nom.copy()
+        x[j] += 1.0
+        try:
+            plants.append(base_spec.build(x)[0])
+        except ValueError:
+            plants.append(plants[0])
+    rows, rhs = [], []
+    for rd in data.recs:
+        rec = rd.rec
+        if rec.current_A is None:
+            continue
+        dt = float(rec.dt_s)
+        w = max(5, int(round(EQ_WINDOW_S / dt)) | 1)
+        if rec.angle_deg.size < 3 * w:
+            continue
+        phi_m = np.radians(np.asarray(rec.angle_deg, float))
+        phi = savgol_filter(phi_m, w, 3)
+        om = savgol_filter(phi_m, w, 3, deriv=1, delta=dt)
+        acc = savgol_filter(phi_m, w, 3, deriv=2, delta=dt)
+        cur = savgol_filter(np.asarray(rec.current_A, float), w, 3)
+        m = (np.abs(om) > EQ_MOVING_RAD_S) & (phi > lo + EQ_STOP_MARGIN_RAD) & (phi < hi - EQ_STOP_MARGIN_RAD)
+        m[:w] = m[-w:] = False
+        k = np.flatnonzero(m)
+        if k.size == 0:
+            continue
+        t0 = _stateless_torque(plants[0], phi[k], om[k], cur[k])
+        dT = [_stateless_torque(pl, phi[k], om[k], cur[k]) - t0 if pl is not plants[0] else np.zeros(k.size)
+              for pl in plants[1:]]
+        inertia = float(plants[0].P[0])
+        rhs.append(inertia * acc[k] - t0)
+        rows.append(np.concatenate([np.stack(dT, axis=1) if dT else np.zeros((k.size, 0)),
+                                    np.stack([np.sign(om[k]), om[k]], axis=1),
+                                    _hats(phi[k], np.asarray(ta.grid, float)) * ta.scale,
+                                    _hats(phi[k], np.asarray(tc.grid, float)) * (cur[k, None] * tc.scale)], axis=1))
+    if not rhs:
+        return None
+    A, y = np.concatenate(rows), np.concatenate(rhs)
+    na, nc = len(ta.grid), len(tc.grid)
+    if y.size < A.shape[1]:
+        return None
+    G = A.T @ A
+    d = np.diag(G)
+    P = np.diag(1e-6 * max(float(np.mean(d)), 1e-300) + np.zeros(d.size))
+    for off, n in ((n_nom + 2, na), (n_nom + 2 + na, nc)):
+        D = np.diff(np.eye(n), 2, axis=0)
+        sl = slice(off, off + n)
+        P[sl, sl] += EQ_ROUGHNESS * float(np.mean(d[sl])) * n * (D.T @ D)
+    try:
+        b = np.linalg.solve(G + P, A.T @ y)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(b)):
+        return None
+    vals = {"unmodelled_angle": b[n_nom + 2:n_nom + 2 + na], "unmodelled_current": b[n_nom + 2 + na:]}
+    x = np.concatenate([x_nom + b[:n_nom]] + [vals.get(t.id, np.zeros(t.n_coef)) for t in terms])
+    spec = base_spec
+    for t in terms:
+        spec = spec.with_candidate(t.candidate())
+    lo_b, hi_b = spec.bounds()
+    return np.clip(x, lo_b, hi_b)
+
+
+def _fit_tables(base_spec: Spec, x_nom: np.ndarray, data: Data, current_fine: bool, seed: bool = False):
+    """(terms, spec, problem, penalized fit) of the nominal model plus the generic tables, fitted by output
+    error from the nominal model with the tables at zero, or (``seed``) from :func:`equation_error_seed`
+    (None when it has none)."""
+    terms = generic_terms(base_spec.base, data, current_fine=current_fine)
+    spec = base_spec
+    for t in terms:
+        spec = spec.with_candidate(t.candidate())
+    x0 = np.concatenate([x_nom, np.zeros(sum(t.n_coef for t in terms))])
+    if seed:
+        x0 = equation_error_seed(base_spec, x_nom, terms, data)
+        if x0 is None:
+            return None
+    pb = Problem.make(spec, x0, ("nominal",) + tuple(t.id for t in terms), terms, data)
+    return terms, spec, pb, fit_penalized(pb, data, iters=GN_ITER)
 
 
 def _rms_deg(spec: Spec, x, data: Data) -> float:
