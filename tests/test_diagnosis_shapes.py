@@ -226,17 +226,22 @@ def test_equation_error_seed_finds_a_current_ripple_without_simulating():
     assert np.max(np.abs(ang)) < 0.5 * np.max(np.abs(truth[ok])) * np.max(np.abs(rec.current_A))
 
 
+def _part_of_the_stroke():
+    """3 s of data in which the plate stays within 10-30 deg (the tables' knots elsewhere are never visited)."""
+    from etb_gym.diagnose.model import prepare
+    from etb_gym.recordings import Recording
+    t = np.arange(3000) * 1e-3
+    ang = 20.0 + 10.0 * np.sin(2 * np.pi * 0.5 * t)
+    rec = Recording(name="part.csv", t_s=t, voltage_V=np.full(t.size, 2.0), angle_deg=ang, current_A=None,
+                    supply_V=None)
+    return prepare([rec], 12.0)
+
+
 def test_knots_the_recordings_did_not_visit_are_anchored_to_the_formula():
     """A table is identified only where the recordings went. Knots with less than VISIT_MIN_S of hat-weighted
     time near them are pulled to 0 (the formula alone) instead of continuing the last visited slope to the stop
     (what the roughness penalty alone does)."""
-    from etb_gym.diagnose.model import prepare
-    from etb_gym.recordings import Recording
-    t = np.arange(3000) * 1e-3
-    ang = 20.0 + 10.0 * np.sin(2 * np.pi * 0.5 * t)                 # the plate stays within 10-30 deg
-    rec = Recording(name="part.csv", t_s=t, voltage_V=np.full(t.size, 2.0), angle_deg=ang, current_A=None,
-                    supply_V=None)
-    data = prepare([rec], 12.0)
+    data = _part_of_the_stroke()
     base = make_plant("3B")
     term = S.family_term("airflow_torque", base, data)
     vis = S.visit_time_s(term, data)
@@ -267,13 +272,7 @@ def test_beyond_the_visited_range_a_family_table_holds_the_formula_plus_table_at
     total (formula + table) at its value at the last visited knot, instead of the formula's own continuation
     (an angle-dependent friction's quadratic, fitted on 10-30 deg, would add its curve out to the stops)."""
     from etb_gym.components.effects_friction import AngleDependentFriction
-    from etb_gym.diagnose.model import prepare
-    from etb_gym.recordings import Recording
-    t = np.arange(3000) * 1e-3
-    ang = 20.0 + 10.0 * np.sin(2 * np.pi * 0.5 * t)                 # the plate stays within 10-30 deg
-    rec = Recording(name="part.csv", t_s=t, voltage_V=np.full(t.size, 2.0), angle_deg=ang, current_A=None,
-                    supply_V=None)
-    data = prepare([rec], 12.0)
+    data = _part_of_the_stroke()
     base = make_plant("3B")
     term = S.family_term("angle_dependent_friction", base, data)
     formula = AngleDependentFriction(slope_Nm=0.04, curvature_Nm=0.12)
