@@ -165,7 +165,7 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
         "calibrated_plant": "calibrated_plant.toml",
         "calibrated_parameters": calibrated,
         "sensor": {"offset_deg": sensor.offset_deg, "gain": sensor.gain, "delay_s": sensor.delay_s,
-                   "resolution_deg": quant},
+                   "resolution_deg": quant, **sensor.section_maps()},
         "regimes_before": before,
         "regimes_after": after,
         "tests": tests,
@@ -344,7 +344,8 @@ def markdown(result, figures) -> str:
     figures = list(figures) + [f for f in r.get("shape_figures", []) if f not in figures]
     lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
     lines += ["", f"The calibrated plant (with the effects that act on the plate) is `{r['calibrated_plant']}`: "
-              "`gym.make(\"ETB-3B-v0\", plant=...)` loads it. Sensor-side effects are in `report.json` (`sensor`).", ""]
+              "`gym.make(\"ETB-3B-v0\", plant=...)` loads it. Sensor-side effects are in `report.json` (`sensor`) and in "
+              "its `[sensor]` section (`etb_gym.plantfile.load_sensor`).", ""]
     return "\n".join(lines)
 
 
@@ -403,6 +404,6 @@ def write(result, out: Path) -> None:
     if isinstance(stages, dict):                 # the figures' wall time too (the report's json comes after)
         stages["figures"] = time.perf_counter() - t0
         result.elapsed_s = result.report["elapsed_s"] = result.report.get("elapsed_s", 0.0) + stages["figures"]
-    save_plant(result.plant, out / "calibrated_plant.toml")
+    save_plant(result.plant, out / "calibrated_plant.toml", sensor=result.sensor.section())
     _atomic_text(out / "report.json", json.dumps(_json_safe(result.report), indent=2) + "\n")
     _atomic_text(out / "report.md", markdown(result, figures))
