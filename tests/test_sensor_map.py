@@ -122,3 +122,15 @@ def test_a_plant_file_with_a_bad_sensor_section_is_refused_naming_the_file(tmp_p
         save_plant(make_plant("3B"), tmp_path / "x.toml", sensor={"gain": 0.0})
     assert not (tmp_path / "x.toml").exists()
     assert math.isclose(SensorModel.from_section({"offset_rad": math.radians(1.0)}).offset_deg, 1.0)
+
+
+def test_a_spec_holds_its_sensor_map_over_the_candidates_sensor_fields():
+    from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.model import Spec
+    filt = ReadingFilterParams(weights=(0.5, 0.5))
+    spec = Spec(make_plant("3B"), sensor_map=SM.held("filter", filt)).with_candidate(CANDIDATES["sensor_delay"])
+    x = spec.x0()
+    _, sensor = spec.build(x)
+    assert sensor.filter == filt and sensor.delay_s == 0.0          # the filter replaces the fitted delay
+    _, plain = Spec(make_plant("3B")).with_candidate(CANDIDATES["sensor_delay"]).build(x)
+    assert plain.filter is None and plain.delay_s == pytest.approx(0.001)
