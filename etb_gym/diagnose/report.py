@@ -306,6 +306,11 @@ def markdown(result, figures) -> str:
             lines.append(f"- shape: {sh.get('description', 'a table learned from the data')}; held-out error "
                          f"{sh.get('heldout_formula', float('nan')):.4g} with the formula, "
                          f"{sh.get('heldout_map', float('nan')):.4g} with the table (see shapes.png)")
+        sm = e.get("sensor_map")
+        if sm:                      # a sensing family's learned map (sensor_map.py)
+            lines.append(f"- sensor {sm['kind']}: {sm['description']}; cross-validated error {sm['cv_error_with']:.4g} "
+                         f"against {sm['cv_error_without']:.4g} without it"
+                         + (" (see shapes.png)" if sm["kept"] else ": not kept, the twin reads without it"))
         lines.append("")
     skipped = r.get("skipped_candidates") or []
     if skipped:
