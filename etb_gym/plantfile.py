@@ -2,6 +2,7 @@
 
     save_plant(plant, "calibrated_plant.toml")      # written atomically
     plant = load_plant("calibrated_plant.toml")     # or .json; gym.make("ETB-3B-v0", plant=path)
+    sensor = load_sensor("calibrated_plant.toml")   # its [sensor] section (a twin's reading model), or None
 """
 from __future__ import annotations
 
@@ -54,10 +55,15 @@ def dumps_toml(d: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def save_plant(plant: Plant, path) -> Path:
-    """Write ``plant`` to ``path`` (.toml or .json) atomically."""
+def save_plant(plant: Plant, path, sensor: dict | None = None) -> Path:
+    """Write ``plant`` to ``path`` (.toml or .json) atomically; ``sensor``: a ``[sensor]`` section (the twin's
+    reading model, components.sensor.sensor_section_dict), checked before anything is written."""
     path = Path(path)
     d = plant.to_dict()
+    if sensor is not None:
+        from .components.sensor import sensor_section
+        sensor_section(sensor)
+        d["sensor"] = sensor
     if path.suffix == ".json":
         text = json.dumps(d, indent=2)
     elif path.suffix == ".toml":
@@ -68,7 +74,24 @@ def save_plant(plant: Plant, path) -> Path:
 
 
 def load_plant(path) -> Plant:
-    """Read a plant file (.toml or .json). Errors name the file and the offending key; the file is only read."""
+    """Read a plant file (.toml or .json). Errors name the file and the offending key; the file is only read.
+    A ``[sensor]`` section is checked too (:func:`load_sensor` returns it); the plant does not hold it."""
+    d = _read(path)
+    try:
+        return Plant.from_dict({k: v for k, v in d.items() if k != "sensor"})
+    except (ValueError, TypeError, KeyError) as e:
+        raise ValueError(f"plant file {path}: {e}") from None
+
+
+def load_sensor(path) -> dict | None:
+    """A plant file's ``[sensor]`` section, checked (components.sensor.sensor_section: offset_rad, gain, delay_s,
+    curve, filter), or None where the file has none."""
+    d = _read(path)
+    return None if d.get("sensor") is None else d["sensor"]
+
+
+def _read(path) -> dict:
+    """The parsed plant file, its [sensor] section checked."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"plant file {path} does not exist")
@@ -95,10 +118,13 @@ def load_plant(path) -> Plant:
                          f"docs/plant-file.md") from None
     if not isinstance(d, dict):
         raise ValueError(f"plant file {path}: expected a table (an object) at the top level")
-    try:
-        return Plant.from_dict(d)
-    except (ValueError, TypeError, KeyError) as e:
-        raise ValueError(f"plant file {path}: {e}") from None
+    if d.get("sensor") is not None:
+        from .components.sensor import sensor_section
+        try:
+            sensor_section(d["sensor"])
+        except ValueError as e:
+            raise ValueError(f"plant file {path}: {e}") from None
+    return d
 
 
 def _no_constant(name):

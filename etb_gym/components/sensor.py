@@ -2,6 +2,13 @@
 
     measured = q * round((gain * phi(t - delay) + offset + n) / q),    n ~ N(0, sigma^2)
 
+A twin's reading model (the diagnosis, a plant file's ``[sensor]`` section) may add two terms learned from the
+data, between the delay and the gain:
+
+    phi_c[k] = phi_d[k] + d(phi_d[k])            reading curve  (effects_maps.SensorMapParams: a table over angle)
+    phi_f[k] = sum_j w_j phi_c[k - j]            reading filter (:class:`ReadingFilterParams`, :func:`fir_series`)
+    measured = gain * phi_f + offset (+ n, quantized)
+
 with q the resolution (0 = none). The delay is a whole number of control periods. The current sensor
 adds N(0, sigma_i^2) noise and its own quantization. Angles are radians inside; the env and the
 recording files present degrees (documented edges).
@@ -85,6 +92,54 @@ def delay_series(values, n):
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class ReadingFilterParams(Params):
+    """The reading's dynamics as a causal FIR kernel over control periods: ``weights[j]`` multiplies the angle
+    ``j`` periods old (newest first). Unit DC gain (the weights sum to 1): at rest the reading is the angle, the
+    static map is ``gain``/``offset`` and the reading curve. A pure delay of d periods is a 1 at index d; a
+    first-order lag a decaying exponential; a moving average N equal weights."""
+
+    weights: tuple = (1.0,)
+
+    def validate(self):
+        n = "ReadingFilterParams"
+        try:
+            w = np.asarray(self.weights, float)
+        except (TypeError, ValueError):
+            raise ValueError(f"{n}.weights = {self.weights!r} is invalid: expected a list of numbers") from None
+        shown = [float(x) for x in np.ravel(w)]
+        check(n, "weights", shown, w.ndim == 1 and 1 <= w.size <= MAX_FILTER_TAPS,
+              f"a list of 1 to {MAX_FILTER_TAPS} weights (one per control period, newest first)")
+        check(n, "weights", shown, bool(np.all(np.isfinite(w))), "finite numbers")
+        check(n, "weights", shown, abs(float(np.sum(w)) - 1.0) <= 1e-6,
+              f"weights that sum to 1 (unit gain at rest; they sum to {float(np.sum(w))!r})")
+        object.__setattr__(self, "weights", tuple(float(x) for x in w))
+
+    @property
+    def mean_lag_periods(self) -> float:
+        """The kernel's centre of mass in control periods (a pure delay's length)."""
+        return float(np.dot(np.arange(len(self.weights)), self.weights))
+
+
+MAX_FILTER_TAPS = 64
+
+
+@kernel
+def fir_series(values, weights):
+    """A sampled series through the causal FIR kernel ``weights`` (newest first); before the start the input
+    holds ``values[0]`` (a plate at rest), as :func:`delay_series`."""
+    n = values.shape[0]
+    out = np.empty_like(values)
+    m = weights.shape[0]
+    for k in range(n):
+        tot = 0.0
+        for j in range(m):
+            i = k - j
+            tot += weights[j] * (values[i] if i >= 0 else values[0])
+        out[k] = tot
+    return out
+
+
 _delay_push = py_func(delay_push)      # one scalar step: the plain function beats a compiled call's dispatch
 
 
@@ -129,3 +184,53 @@ class PositionSensor:
         c = np.asarray(current_A, float)
         n = rng.normal(0.0, p.current_noise_std_A, c.size) if p.current_noise_std_A > 0 else 0.0
         return _quantize(c + n, p.current_resolution_A)
+
+
+# ------------------------------------------------------------------------------------ a plant file's [sensor]
+SENSOR_SECTION_KEYS = ("offset_rad", "gain", "delay_s", "curve", "filter")
+
+
+def sensor_section(d) -> dict:
+    """A plant file's ``[sensor]`` section (docs/plant-file.md) checked: ``{"offset_rad", "gain", "delay_s",
+    "curve": SensorMapParams | None, "filter": ReadingFilterParams | None}``. Errors name the key
+    (``sensor.curve.error_rad``), its value and what was expected."""
+    from .effects_maps import SensorMapParams
+    if not isinstance(d, dict):
+        raise ValueError(f"sensor = {d!r} is invalid: expected a table with some of {', '.join(SENSOR_SECTION_KEYS)}")
+    bad = sorted(set(d) - set(SENSOR_SECTION_KEYS))
+    if bad:
+        raise ValueError(f"sensor: unknown key(s) {bad}; valid: {list(SENSOR_SECTION_KEYS)}")
+    out = {}
+    for k, default, ok, expected in (("offset_rad", 0.0, lambda v: True, "a finite angle [rad]"),
+                                     ("gain", 1.0, lambda v: v > 0, "a finite gain > 0"),
+                                     ("delay_s", 0.0, lambda v: v >= 0, "a finite delay >= 0 s")):
+        v = d.get(k, default)
+        num = isinstance(v, (int, float)) and not isinstance(v, bool)
+        check("sensor", k, v, num and math.isfinite(float(v)) and ok(float(v)), expected)
+        out[k] = float(v)
+    for k, cls in (("curve", SensorMapParams), ("filter", ReadingFilterParams)):
+        v = d.get(k)
+        if v is None:
+            out[k] = None
+            continue
+        if not isinstance(v, dict):
+            raise ValueError(f"sensor.{k} = {v!r} is invalid: expected a table of {cls.__name__} fields")
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(v) - names)
+        if unknown:
+            raise ValueError(f"sensor.{k}: unknown key(s) {unknown}; valid: {sorted(names)}")
+        try:
+            out[k] = cls(**v)
+        except ValueError as e:
+            raise ValueError(f"sensor.{k}: {e}") from None
+    return out
+
+
+def sensor_section_dict(offset_rad: float, gain: float, delay_s: float, curve=None, filter=None) -> dict:
+    """The ``[sensor]`` section for a plant file (the inverse of :func:`sensor_section`)."""
+    d = {"offset_rad": float(offset_rad), "gain": float(gain), "delay_s": float(delay_s)}
+    if curve is not None:
+        d["curve"] = {k: list(v) for k, v in curve.to_dict().items()}
+    if filter is not None:
+        d["filter"] = {"weights": list(filter.weights)}
+    return d

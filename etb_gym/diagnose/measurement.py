@@ -19,7 +19,9 @@ import math
 
 import numpy as np
 
-from ..components.sensor import PositionSensor, PositionSensorParams
+from ..components.effects_maps import SensorMap, SensorMapParams
+from ..components.sensor import (PositionSensor, PositionSensorParams, ReadingFilterParams, fir_series,
+                                 sensor_section, sensor_section_dict)
 
 DEFAULT_RESOLUTION_DEG = 90.0 / 4096      # PositionSensorParams default: 12 bits over 90 deg
 REST_TREND_DEGREE = 3                     # polynomial removed from each rest run before its spread is taken
@@ -27,26 +29,65 @@ REST_TREND_DEGREE = 3                     # polynomial removed from each rest ru
 
 @dataclasses.dataclass(frozen=True)
 class SensorModel:
-    """What the diagnosis assumes about the angle sensor (degrees at this edge)."""
+    """What the diagnosis assumes about the angle sensor (degrees at this edge). ``curve`` (a reading error over
+    angle, effects_maps.SensorMapParams) and ``filter`` (a causal FIR kernel over samples,
+    components.sensor.ReadingFilterParams) are the sensor-side maps learned once a sensing family is named
+    (sensor_map.py); the order is the components.sensor docstring's: delay, curve, filter, gain and offset."""
 
     offset_deg: float = 0.0
     gain: float = 1.0
     delay_s: float = 0.0
     resolution_deg: float = 0.0
+    curve: SensorMapParams | None = None
+    filter: ReadingFilterParams | None = None
 
-    def apply(self, t_s: np.ndarray, angle_deg: np.ndarray, quantize: bool = False) -> np.ndarray:
-        """The reading for a true angle trajectory sampled at ``t_s``."""
+    def true_reading(self, t_s: np.ndarray, angle_deg: np.ndarray) -> np.ndarray:
+        """The angle after the delay, the curve and the filter, before gain and offset [deg]."""
         a = np.asarray(angle_deg, float)
         if self.delay_s > 0.0:
             a = np.interp(t_s - self.delay_s, t_s, a)          # holds a[0] before the start
+        if self.curve is not None:
+            a = SensorMap(self.curve).apply_deg(a)
+        if self.filter is not None and a.size:
+            a = fir_series(np.ascontiguousarray(a, dtype=float), np.asarray(self.filter.weights, float))
+        return a
+
+    def apply(self, t_s: np.ndarray, angle_deg: np.ndarray, quantize: bool = False) -> np.ndarray:
+        """The reading for a true angle trajectory sampled at ``t_s``."""
+        a = self.true_reading(t_s, angle_deg)
         sensor = PositionSensor(PositionSensorParams(
             noise_std_rad=0.0, resolution_rad=math.radians(self.resolution_deg) if quantize else 0.0,
             offset_rad=math.radians(self.offset_deg), gain=self.gain))
         return np.degrees(sensor.transform(np.radians(a), 0.0))
 
-    def invert(self, reading_deg: float) -> float:
-        """The true angle of a reading at rest (delay does not matter at rest)."""
-        return (reading_deg - self.offset_deg) / self.gain
+    def invert(self, reading_deg):
+        """The true angle of a reading at rest (delay and filter do not matter at rest); arrays too."""
+        a = (np.asarray(reading_deg, float) - self.offset_deg) / self.gain
+        if self.curve is not None:
+            a = SensorMap(self.curve).invert_deg(a)
+        return float(a) if np.ndim(a) == 0 else a
+
+    def lag_periods(self, dt_s: float) -> float:
+        """How many sample periods the reading lags the plate: the delay and the filter's centre of mass."""
+        return self.delay_s / dt_s + (self.filter.mean_lag_periods if self.filter is not None else 0.0)
+
+    def lag_s(self, dt_s: float) -> float:
+        """:meth:`lag_periods` in seconds (the delay itself where there is no filter)."""
+        return self.delay_s + (self.filter.mean_lag_periods * dt_s if self.filter is not None else 0.0)
+
+    def section(self) -> dict:
+        """This sensor as a plant file's ``[sensor]`` section (docs/plant-file.md; radians there)."""
+        return sensor_section_dict(math.radians(self.offset_deg), self.gain, self.delay_s, self.curve, self.filter)
+
+    def section_maps(self) -> dict:
+        """The learned maps of :meth:`section` only (report.json's ``sensor``: ``curve``, ``filter``)."""
+        return {k: v for k, v in self.section().items() if k in ("curve", "filter")}
+
+    @classmethod
+    def from_section(cls, d: dict, resolution_deg: float = 0.0) -> "SensorModel":
+        """The sensor of a plant file's ``[sensor]`` section (checked by components.sensor.sensor_section)."""
+        s = sensor_section(d)
+        return cls(math.degrees(s["offset_rad"]), s["gain"], s["delay_s"], resolution_deg, s["curve"], s["filter"])
 
 
 def detect_resolution(y: np.ndarray, rel_tol: float = 0.08) -> float:

@@ -152,6 +152,7 @@ class Spec:
     base: Plant
     candidates: tuple = ()          # active Candidate objects, in the order they were added
     nominal: tuple | None = None
+    sensor_map: dict | None = None  # SensorModel fields held fixed over the candidates' (sensor_map.py: a curve, a filter)
 
     def __post_init__(self):
         if self.nominal is None:
@@ -161,7 +162,7 @@ class Spec:
             self.params += [(c.id, p) for p in c.params_for(self.base)]
 
     def with_candidate(self, c: Candidate) -> "Spec":
-        return Spec(self.base, tuple(self.candidates) + (c,), self.nominal)
+        return Spec(self.base, tuple(self.candidates) + (c,), self.nominal, self.sensor_map)
 
     @property
     def names(self) -> list[str]:
@@ -223,7 +224,7 @@ class Spec:
             effects.append(e)
         if effects:
             plant = plant.replace(effects=tuple(self.base.effects) + tuple(effects))
-        return plant, SensorModel(**sensor)
+        return plant, SensorModel(**{**sensor, **(self.sensor_map or {})})
 
 
 def _persistent_slices(plant: Plant) -> list[tuple[int, int]]:
@@ -299,9 +300,10 @@ def simulate(plant: Plant, sensor: SensorModel, data: Data, raise_on_failure: bo
                 # state (speed, current, bristles); the re-start at the readings blends in as the gap grows
                 # (the model's angle as the sensor saw it: with a delay, the readings show the plate earlier)
                 seen = math.degrees(float(xprev[0]))
-                if sensor.delay_s > 0.0:
-                    k = max(0, a - int(math.ceil(sensor.delay_s / plant.control_period_s)) - 2)
-                    seen = float(np.interp(float(r.t_s[a]) - sensor.delay_s, r.t_s[k:a + 1],
+                lag_s = sensor.lag_s(plant.control_period_s)
+                if lag_s > 0.0:
+                    k = max(0, a - int(math.ceil(lag_s / plant.control_period_s)) - 2)
+                    seen = float(np.interp(float(r.t_s[a]) - lag_s, r.t_s[k:a + 1],
                                            np.append(ang[k:a], seen)))
                 w = restart_weight(abs(seen - math.degrees(phi0)) / rd.noise_deg)
                 if w < 1.0:

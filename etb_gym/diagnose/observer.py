@@ -57,7 +57,7 @@ def observe(plant, sensor, rd, omega_o: float | None = None):
     injection; (None, reason) where the simulation fails, else ((angle, current), None)."""
     r = rd.rec
     n = r.n
-    y_rad = np.radians((np.asarray(r.angle_deg, float) - sensor.offset_deg) / sensor.gain)
+    y_rad = np.radians(sensor.invert(np.asarray(r.angle_deg, float)))
     R = float(getattr(plant.drive.params, "resistance_ohm", 1.0))
     if r.current_A is not None:
         i0 = float(np.mean(r.current_A[0:3]))
@@ -68,7 +68,7 @@ def observe(plant, sensor, rd, omega_o: float | None = None):
     x0 = plant.initial_state(phi0, current_A=i0)
     X = np.empty((n, plant.n_states))
     A = np.empty((n, len(plant.components)))
-    lag = max(0.0, float(sensor.delay_s) / float(plant.control_period_s))
+    lag = max(0.0, sensor.lag_periods(float(plant.control_period_s)))
     L = gains(plant.control_period_s, plant.n_states, omega_o) if GAIN_OVERRIDE is None else GAIN_OVERRIDE(plant)
     done = plant.stepper().observe(x0, rd.duty[:n - 1], rd.supply_V[:n - 1], plant.P, float(r.t_s[0]),
                                     plant.control_period_s, plant.substeps, plant.supply.switching,

@@ -30,6 +30,7 @@ class Outcome:
     outside: bool = False
     heldout_catalogue: float | None = None
     dropped: tuple = ()                    # catalogue ids the generic model displaced
+    sensor_maps: list = dataclasses.field(default_factory=list)   # sensor_map.SensorRefinement per sensing family
 
     def entries(self, names, rms_before_deg: float) -> tuple[dict, list]:
         """(per effect id: the "shape" to add to that effect, entries to put first under "unexplained")."""
@@ -73,6 +74,9 @@ class Outcome:
                     c = g.tables[t.id]
                     tab = {k: list(v) if isinstance(v, tuple) else v for k, v in c.params.to_dict().items()}
                     panels.append((t, tab, f"outside the catalogue ({g.id}): {t.cls.description}"))
+        # sensing families: the learned sensor-side map (sensor_map.py)
+        panels += [("sensor", r, f"{r.family_id}: sensor {r.kind} learned from the data")
+                   for r in self.sensor_maps if r.kept]
         if not panels:
             return None
         from pathlib import Path
@@ -82,7 +86,10 @@ class Outcome:
         fig = Figure(figsize=(7, 2.6 * len(panels)))
         FigureCanvasAgg(fig)
         for k, (t, tab, title) in enumerate(panels):
-            if t is None:                      # a Fourier series (unmodelled.with_series)
+            if t == "sensor":                  # a sensor-side map (sensor_map.py)
+                from .sensor_map import plot as plot_sensor
+                plot_sensor(fig.add_subplot(len(panels), 1, k + 1), tab, title)
+            elif t is None:                    # a Fourier series (unmodelled.with_series)
                 from .unmodelled import plot_series
                 plot_series(fig.add_subplot(len(panels), 1, k + 1), tab, title)
             else:
@@ -97,9 +104,12 @@ class Outcome:
         """Add the shapes and the outside-the-catalogue entry to ``result.report`` (and the plot to ``out``)."""
         rep = result.report
         shapes, unexplained = self.entries(rep["recordings"], rep["rms_before_deg"])
+        sensor_maps = {r.family_id: r.entry() for r in self.sensor_maps}
         for e in rep["effects"]:
             if e["id"] in shapes:
                 e["shape"] = shapes[e["id"]]
+            if e["id"] in sensor_maps:
+                e["sensor_map"] = sensor_maps[e["id"]]
         rep["unexplained"] = unexplained + list(rep["unexplained"])
         if self.outside:
             rep["outside_catalogue"] = unexplained[0]["id"] if unexplained else None
@@ -193,6 +203,15 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
         res.refinements.append(ref)
         if ref.kept:
             cur = ref.fit
+    # ---- sensing families: a sensor-side map learned from the data (sensor_map.py, d18sensor)
+    from .sensor_map import refine_sensor
+    for st in steps:
+        sref = refine_sensor(cur, st.id, data, log)
+        if sref is not None:
+            res.sensor_maps.append(sref)
+            if sref.kept:
+                cur = sref.fit
+    # ----
     if not outside:
         return cur, steps, res
     periodic = False

@@ -165,7 +165,7 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
         "calibrated_plant": "calibrated_plant.toml",
         "calibrated_parameters": calibrated,
         "sensor": {"offset_deg": sensor.offset_deg, "gain": sensor.gain, "delay_s": sensor.delay_s,
-                   "resolution_deg": quant},
+                   "resolution_deg": quant, **sensor.section_maps()},
         "regimes_before": before,
         "regimes_after": after,
         "tests": tests,
@@ -306,6 +306,11 @@ def markdown(result, figures) -> str:
             lines.append(f"- shape: {sh.get('description', 'a table learned from the data')}; held-out error "
                          f"{sh.get('heldout_formula', float('nan')):.4g} with the formula, "
                          f"{sh.get('heldout_map', float('nan')):.4g} with the table (see shapes.png)")
+        sm = e.get("sensor_map")
+        if sm:                      # a sensing family's learned map (sensor_map.py)
+            lines.append(f"- sensor {sm['kind']}: {sm['description']}; cross-validated error {sm['cv_error_with']:.4g} "
+                         f"against {sm['cv_error_without']:.4g} without it"
+                         + (" (see shapes.png)" if sm["kept"] else ": not kept, the twin reads without it"))
         lines.append("")
     skipped = r.get("skipped_candidates") or []
     if skipped:
@@ -344,7 +349,8 @@ def markdown(result, figures) -> str:
     figures = list(figures) + [f for f in r.get("shape_figures", []) if f not in figures]
     lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
     lines += ["", f"The calibrated plant (with the effects that act on the plate) is `{r['calibrated_plant']}`: "
-              "`gym.make(\"ETB-3B-v0\", plant=...)` loads it. Sensor-side effects are in `report.json` (`sensor`).", ""]
+              "`gym.make(\"ETB-3B-v0\", plant=...)` loads it. Sensor-side effects are in `report.json` (`sensor`) and in "
+              "its `[sensor]` section (`etb_gym.plantfile.load_sensor`).", ""]
     return "\n".join(lines)
 
 
@@ -403,6 +409,6 @@ def write(result, out: Path) -> None:
     if isinstance(stages, dict):                 # the figures' wall time too (the report's json comes after)
         stages["figures"] = time.perf_counter() - t0
         result.elapsed_s = result.report["elapsed_s"] = result.report.get("elapsed_s", 0.0) + stages["figures"]
-    save_plant(result.plant, out / "calibrated_plant.toml")
+    save_plant(result.plant, out / "calibrated_plant.toml", sensor=result.sensor.section())
     _atomic_text(out / "report.json", json.dumps(_json_safe(result.report), indent=2) + "\n")
     _atomic_text(out / "report.md", markdown(result, figures))
