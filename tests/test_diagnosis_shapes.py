@@ -371,26 +371,6 @@ def test_a_family_table_is_fitted_on_both_views_of_an_open_loop_replay(monkeypat
     assert seen == [True] and ref.heldout_map == 0.5
 
 
-def test_a_friction_family_table_gets_the_nominal_static_level_as_a_parameter_of_its_own():
-    # shapes.own_breakaway (docs/diagnosis.md, round 15): the same plant, the static level free of the Coulomb
-    # level; nothing to split on a Dahl nominal (no static level) or once split
-    from etb_gym.diagnose.candidates import candidate
-    spec = Spec(make_plant("3B")).with_candidate(candidate("angle_dependent_friction"))
-    x = spec.x0()
-    x[0] = 1.7                                               # the calibrated Coulomb level moved
-    split, xs = S.own_breakaway(spec, x)
-    assert split.names == spec.names[:1] + ["friction.static_Nm"] + spec.names[1:]
-    before, after = spec.build(x)[0].params_dict(), split.build(xs)[0].params_dict()
-    assert after == pytest.approx(before)
-    xs[1] += 1.0                                             # the static level moves alone
-    moved = split.build(xs)[0].params_dict()
-    assert moved["friction.coulomb_Nm"] == pytest.approx(before["friction.coulomb_Nm"])
-    assert moved["friction.static_Nm"] > before["friction.static_Nm"] + 1e-3
-    assert S.own_breakaway(split, xs)[0] is split
-    dahl = Spec(make_plant("2B"))
-    assert S.own_breakaway(dahl, dahl.x0())[0] is dahl
-
-
 def test_a_friction_level_error_moves_a_held_rest_angle_by_the_error_over_the_spring_rate():
     # why a friction twin within a few mN m misses an open-loop held-out recording by 10-20x the noise
     # (docs/diagnosis.md, round 15): the plate sticks where motor - spring = friction, so 1 mN m of friction moves

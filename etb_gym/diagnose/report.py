@@ -148,11 +148,7 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
                       "ljung_box_p_after": L.ljung_box(r1 / rd.noise_deg), "input_xcorr_before": x0,
                       "input_xcorr_after": x1, "input_xcorr_bound_99": bound})
     nerr = nominal.stderr()
-    nom_vals = dict(nominal.values)
-    if any(n not in nom_vals for n in final.spec.names):   # a parameter the refinement freed (shapes.own_breakaway)
-        nom_pd = nominal.spec.build(nominal.x)[0].params_dict()
-        nom_vals.update({n: float(nom_pd[n]) for n in final.spec.names if n not in nom_vals and n in nom_pd})
-    calibrated = {n: {"value": v, "stderr": final.stderr()[n], "nominal_fit": nom_vals[n],
+    calibrated = {n: {"value": v, "stderr": final.stderr()[n], "nominal_fit": nominal.values[n],
                       "unit": p.unit} for n, v, (_, p) in zip(final.spec.names, final.spec.values(final.x).values(),
                                                                 final.spec.params) if _ == "nominal"}
     report = {

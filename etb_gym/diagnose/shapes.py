@@ -685,28 +685,6 @@ class Refinement:
         return {"component": comp.kind, **{k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}}
 
 
-def own_breakaway(spec: Spec, x) -> tuple[Spec, np.ndarray]:
-    """``spec`` with the nominal friction's static level (its break-away torque) a parameter of its own, no longer
-    scaled with the Coulomb level (``FitParam.follows``), and ``x`` moved to it (the same plant): a friction family's
-    table acts on a unit bristle with no static excess, so the split of a constant between the nominal Coulomb level
-    and the table moves the break-away by the nominal's static excess; with its own static level the data choose
-    the break-away and the sliding level apart (docs/diagnosis.md, round 15). Unchanged when no nominal parameter
-    carries a static level along (a Dahl or viscous nominal friction, or a static level already free)."""
-    nom = list(spec.nominal)
-    j = next((k for k, p in enumerate(nom) if "friction.static_Nm" in p.follows), None)
-    if j is None:
-        return spec, np.asarray(x, float)
-    vals = spec.values(x)
-    c = nom[j]
-    ts0 = float(spec.base.params_dict()["friction.static_Nm"])
-    ratio = ts0 / c.init
-    nom[j] = dataclasses.replace(c, follows=tuple(k for k in c.follows if k != "friction.static_Nm"))
-    nom.insert(j + 1, FitParam("friction.static_Nm", ts0, c.lower * ratio, c.upper * ratio, c.scale * ratio, c.unit))
-    out = Spec(spec.base, spec.candidates, tuple(nom))
-    vals["friction.static_Nm"] = ts0 * vals[c.name] / c.init
-    return out, out.x_from_values(vals)
-
-
 def _formula_component(fr: F.FitResult, cid: str):
     """The fitted formula component of candidate ``cid`` in ``fr``'s model (None if it has none)."""
     plant, _ = fr.spec.build(fr.x)
@@ -732,9 +710,8 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refine
     best = None
     comp = _formula_component(final, cid)
     for term in terms:
-        spec_f, x_f = own_breakaway(final.spec, final.x) if term.family == "friction" else (final.spec, final.x)
-        spec_m = spec_f.with_candidate(term.candidate())
-        x0 = np.concatenate([x_f, np.zeros(term.n_coef)])
+        spec_m = final.spec.with_candidate(term.candidate())
+        x0 = np.concatenate([final.x, np.zeros(term.n_coef)])
         pb = Problem.make(spec_m, x0, ("nominal", term.id), [term], data, formula=comp)
         h_map, pf = math.inf, None
         for view in views:
