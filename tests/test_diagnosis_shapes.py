@@ -369,3 +369,17 @@ def test_a_family_table_is_fitted_on_both_views_of_an_open_loop_replay(monkeypat
     seen.clear()
     ref = S.refine_family(fr, "airflow_torque", data, log=lambda *a: None)
     assert seen == [True] and ref.heldout_map == 0.5
+
+
+def test_a_friction_level_error_moves_a_held_rest_angle_by_the_error_over_the_spring_rate():
+    # why a friction twin within a few mN m misses an open-loop held-out recording by 10-20x the noise
+    # (docs/diagnosis.md, round 15): the plate sticks where motor - spring = friction, so 1 mN m of friction moves
+    # the rest angle by 1 mN m / k (3B: 0.16 deg, 13x a 0.012 deg noise)
+    p = make_plant("3B")
+    pd = p.params_dict()
+    duty = np.concatenate([np.zeros(50), np.full(400, 0.35)])
+    d = 1e-3
+    q = p.with_params({"friction.coulomb_Nm": pd["friction.coulomb_Nm"] + d, "friction.static_Nm": pd["friction.static_Nm"] + d})
+    a, b = p.simulate(duty=duty).angle_deg, q.simulate(duty=duty).angle_deg
+    assert np.ptp(a[-100:]) < 1e-3 and np.ptp(b[-100:]) < 1e-3            # held
+    assert a[-1] - b[-1] == pytest.approx(math.degrees(d / pd["spring.rate_Nm_per_rad"]), rel=0.1)
