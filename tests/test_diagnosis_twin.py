@@ -112,3 +112,29 @@ def test_the_exported_twin_gets_an_integrator_step_fine_enough_for_a_closed_loop
         simulate(truth.replace(substeps=k), SensorModel(), hd), hd)[0] ** 2))) / hd.recs[0].noise_deg
     assert score(n) > 1.3
     assert score(n_twin) < 1.1
+
+
+def test_a_tables_penalty_as_residual_rows_is_the_penalty():
+    """run.polish_shaped refits a model with a learned table by least squares with the table's penalty appended as
+    rows (shapes.Problem.penalty_rows): |S theta - c|^2 must equal theta^T P theta - 2 pull^T theta up to one
+    constant, for roughness, ridge, anchored knots, knots held at targets and a nameplate prior alike."""
+    from etb_gym.diagnose.shapes import Problem
+    rng = np.random.default_rng(3)
+    n = 6                                             # two nominal parameters, then a 4-knot table
+    D = np.zeros((2, n))
+    D[0, 2:5], D[1, 3:6] = (1.0, -2.0, 1.0), (1.0, -2.0, 1.0)
+    ridge = np.r_[0.0, 0.0, 1.0, 1.0, 1.0, 1.0]
+    anchor = np.r_[0.0, 0.0, 1.0, 0.0, 0.0, -1.0]     # knot 0 anchored to 0, knot 3 held
+    H = np.zeros((1, n))
+    H[0, 5], H[0, 4] = 1.0, -1.0
+    pb = Problem(None, np.zeros(n), np.arange(n), [(D, ridge, anchor, (H, np.array([0.7])))],
+                 prior=np.r_[0.5, 0.5, 0.0, 0.0, 0.0, 0.0])
+    assert pb.holds()
+    lams = [2.5]
+    S, c = pb.penalty_rows(lams)
+    P, q = pb.penalty(lams), pb.pull(lams)
+    thetas = rng.normal(size=(5, n)) * 3.0
+    pen = np.array([float(t @ P @ t - 2.0 * q @ t) for t in thetas])
+    rows = np.array([float(np.sum((S @ t - c) ** 2)) for t in thetas])
+    assert np.ptp(rows - pen) < 1e-9 * np.max(np.abs(pen)), rows - pen
+    assert not Problem(None, np.zeros(n), np.arange(n), [(D, ridge, anchor, (H[:0], np.zeros(0)))]).holds()
