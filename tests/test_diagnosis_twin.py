@@ -138,3 +138,30 @@ def test_a_tables_penalty_as_residual_rows_is_the_penalty():
     rows = np.array([float(np.sum((S @ t - c) ** 2)) for t in thetas])
     assert np.ptp(rows - pen) < 1e-9 * np.max(np.abs(pen)), rows - pen
     assert not Problem(None, np.zeros(n), np.arange(n), [(D, ridge, anchor, (H[:0], np.zeros(0)))]).holds()
+
+
+def test_a_model_with_a_table_is_polished_on_the_continuous_replay_with_its_penalty():
+    """run.polish of a model whose family got a table (shapes.refine_family) on an open-loop recording: refitted on
+    the continuous replay with the table's penalty (round 15), so that replay's cost falls; an angle family's
+    table holds knots at targets made from its formula, so the formula's parameters stay where they were."""
+    from etb_gym.diagnose import fit as F
+    from etb_gym.diagnose import shapes as S
+    from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.model import Spec, restart_view
+    from etb_gym.diagnose.refine import Outcome
+    from etb_gym.diagnose.run import polish
+    from etb_gym.diagnose.shapes_eval import AngleShape
+    bump = AngleShape(peak_Nm=-0.06, centre_rad=math.radians(45.0), width_rad=math.radians(12.0))
+    truth = make_plant("3B", substeps=40, effects=[bump])
+    data = prepare([make_recording(truth, np.random.default_rng(5), duration_s=4.0, name="bump.csv")], 12.0)
+    spec = Spec(make_plant("3B", substeps=20)).with_candidate(CANDIDATES["airflow_torque"])
+    formula = F.fit(spec, restart_view(data), max_nfev=30)
+    ref = S.refine_family(formula, "airflow_torque", restart_view(data), log=lambda *a: None)
+    assert ref.kept and ref.problem.holds()
+    out = polish(ref.fit, data, Outcome(refinements=[ref]))
+    assert out is not ref.fit
+    cost = lambda x: float(np.sum(F.evaluate(ref.fit.spec, data, x) ** 2))   # noqa: E731
+    assert cost(out.x) < cost(ref.fit.x)
+    owners = [o for o, _ in ref.fit.spec.params]
+    formula_idx = [k for k, o in enumerate(owners) if o == "airflow_torque"]
+    assert np.array_equal(out.x[formula_idx], ref.fit.x[formula_idx])
