@@ -56,7 +56,8 @@ def collect(case: str, duration: float, work: Path) -> dict:
         rec, held, res = out[:3]
         nom_plant, nom_sensor = res.nominal_fit.spec.build(res.nominal_fit.x)
         kept.update(truth=truth, sensor_kw=sensor_kw, rec=rec, held=held, twin=res.plant, twin_sensor=res.sensor,
-                    nominal=nom_plant, nominal_sensor=nom_sensor, report=res.report)
+                    nominal=nom_plant, nominal_sensor=nom_sensor, report=res.report,
+                    final_fit=res.final_fit, nominal_fit=res.nominal_fit, data=res.data)   # for twin_polish.py
         return out
 
     PR.record_and_diagnose = spy

@@ -112,3 +112,56 @@ def test_the_exported_twin_gets_an_integrator_step_fine_enough_for_a_closed_loop
         simulate(truth.replace(substeps=k), SensorModel(), hd), hd)[0] ** 2))) / hd.recs[0].noise_deg
     assert score(n) > 1.3
     assert score(n_twin) < 1.1
+
+
+def test_a_tables_penalty_as_residual_rows_is_the_penalty():
+    """run.polish_shaped refits a model with a learned table by least squares with the table's penalty appended as
+    rows (shapes.Problem.penalty_rows): |S theta - c|^2 must equal theta^T P theta - 2 pull^T theta up to one
+    constant, for roughness, ridge, anchored knots, knots held at targets and a nameplate prior alike."""
+    from etb_gym.diagnose.shapes import Problem
+    rng = np.random.default_rng(3)
+    n = 6                                             # two nominal parameters, then a 4-knot table
+    D = np.zeros((2, n))
+    D[0, 2:5], D[1, 3:6] = (1.0, -2.0, 1.0), (1.0, -2.0, 1.0)
+    ridge = np.r_[0.0, 0.0, 1.0, 1.0, 1.0, 1.0]
+    anchor = np.r_[0.0, 0.0, 1.0, 0.0, 0.0, -1.0]     # knot 0 anchored to 0, knot 3 held
+    H = np.zeros((1, n))
+    H[0, 5], H[0, 4] = 1.0, -1.0
+    pb = Problem(None, np.zeros(n), np.arange(n), [(D, ridge, anchor, (H, np.array([0.7])))],
+                 prior=np.r_[0.5, 0.5, 0.0, 0.0, 0.0, 0.0])
+    assert pb.holds()
+    lams = [2.5]
+    S, c = pb.penalty_rows(lams)
+    P, q = pb.penalty(lams), pb.pull(lams)
+    thetas = rng.normal(size=(5, n)) * 3.0
+    pen = np.array([float(t @ P @ t - 2.0 * q @ t) for t in thetas])
+    rows = np.array([float(np.sum((S @ t - c) ** 2)) for t in thetas])
+    assert np.ptp(rows - pen) < 1e-9 * np.max(np.abs(pen)), rows - pen
+    assert not Problem(None, np.zeros(n), np.arange(n), [(D, ridge, anchor, (H[:0], np.zeros(0)))]).holds()
+
+
+def test_a_model_with_a_table_is_polished_on_the_continuous_replay_with_its_penalty():
+    """run.polish of a model whose family got a table (shapes.refine_family) on an open-loop recording: refitted on
+    the continuous replay with the table's penalty (round 15), so that replay's cost falls; an angle family's
+    table holds knots at targets made from its formula, so the formula's parameters stay where they were."""
+    from etb_gym.diagnose import fit as F
+    from etb_gym.diagnose import shapes as S
+    from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.model import Spec, restart_view
+    from etb_gym.diagnose.refine import Outcome
+    from etb_gym.diagnose.run import polish
+    from etb_gym.diagnose.shapes_eval import AngleShape
+    bump = AngleShape(peak_Nm=-0.06, centre_rad=math.radians(45.0), width_rad=math.radians(12.0))
+    truth = make_plant("3B", substeps=40, effects=[bump])
+    data = prepare([make_recording(truth, np.random.default_rng(5), duration_s=4.0, name="bump.csv")], 12.0)
+    spec = Spec(make_plant("3B", substeps=20)).with_candidate(CANDIDATES["airflow_torque"])
+    formula = F.fit(spec, restart_view(data), max_nfev=30)
+    ref = S.refine_family(formula, "airflow_torque", restart_view(data), log=lambda *a: None)
+    assert ref.kept and ref.problem.holds()
+    out = polish(ref.fit, data, Outcome(refinements=[ref]))
+    assert out is not ref.fit
+    cost = lambda x: float(np.sum(F.evaluate(ref.fit.spec, data, x) ** 2))   # noqa: E731
+    assert cost(out.x) < cost(ref.fit.x)
+    owners = [o for o, _ in ref.fit.spec.params]
+    formula_idx = [k for k, o in enumerate(owners) if o == "airflow_torque"]
+    assert np.array_equal(out.x[formula_idx], ref.fit.x[formula_idx])

@@ -354,6 +354,20 @@ class Problem:
             P += np.diag(self.prior)
         return P
 
+    def holds(self) -> bool:
+        """Does a table hold knots at targets made from the family's formula (:func:`hold_rows`)? Then the
+        formula's parameters must stay where they were when the targets were made."""
+        return any(b.size for _, _, _, (_, b) in self.groups)
+
+    def penalty_rows(self, lams) -> tuple[np.ndarray, np.ndarray]:
+        """(S, c) with |S theta - c|^2 = the penalty theta^T P theta - 2 pull^T theta up to a constant, over the
+        free parameters: the penalty as rows to append to a least-squares residual (S the symmetric square root
+        of P, c its pseudo-inverse applied to the pull)."""
+        w, V = np.linalg.eigh(self.penalty(lams))
+        w = np.clip(w, 0.0, None)
+        S = (V * np.sqrt(w)) @ V.T
+        return S, np.linalg.pinv(S, rcond=1e-12) @ self.pull(lams)
+
     def pull(self, lams) -> np.ndarray:
         """The penalty's linear part: sum_g lambda_g ANCHOR H_g^T b_g (the held knots' targets); the penalty is
         theta^T P theta - 2 pull^T theta + const."""
@@ -675,6 +689,8 @@ class Refinement:
     heldout_formula: float
     heldout_map: float
     kept: bool
+    problem: Problem | None = None  # the table's penalized problem and its chosen absolute roughness weights
+    lams: tuple = ()                # (run.polish refits on the continuous replay with the same penalty)
 
     def table(self) -> dict:
         """The learned table: grid and values (physical units)."""
@@ -725,7 +741,8 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refine
             f"{pf.lams_rel[0]:.2g}{', fitted on the continuous replay' if cont else ''}): held-out {h_formula:.3g} -> "
             f"{h_map:.3g} ({'kept' if kept else 'not kept'})")
         if best is None or h_map < best.heldout_map:
-            best = Refinement(cid, term, pf.fit, pf.lams_rel[0], h_formula, h_map, kept)
+            best = Refinement(cid, term, pf.fit, pf.lams_rel[0], h_formula, h_map, kept, pf.problem,
+                              tuple(pf.lams))
     return best
 
 
