@@ -9,15 +9,17 @@ data, between the delay and the gain:
     phi_f[k] = sum_j w_j phi_c[k - j]            reading filter (:class:`ReadingFilterParams`, :func:`fir_series`)
     measured = gain * phi_f + offset (+ n, quantized)
 
-with q the resolution (0 = none). The delay is a whole number of control periods. The current sensor
-adds N(0, sigma_i^2) noise and its own quantization. Angles are radians inside; the env and the
-recording files present degrees (documented edges).
+with q the resolution (0 = none). The delay is a whole number of control periods (``delay_steps``); a twin's
+``delay_s`` may leave a fraction f of a period, read as ``(1 - f) phi[k - n] + f phi[k - n - 1]`` (linear
+interpolation between samples). The current sensor adds N(0, sigma_i^2) noise and its own quantization.
+Angles are radians inside; the env and the recording files present degrees (documented edges).
 
 The equation and the delay line are written once, as kernels: :func:`sense` (one reading) and
-:func:`delay_push` (one step of the delay line, a ring buffer); the twin's maps as :func:`shape_reading` (the
-fractional delay, the curve and :func:`fir_push`, the filter, one control period; :func:`fir_series` streams
-the same filter over a series), which the envs call between the delay line and :func:`sense`. :class:`PositionSensor` (streaming and array
-readings), the single env and the native vector env's compiled loop all call them.
+:func:`delay_push` (one step of the delay line, a ring buffer); the twin's maps for one control period as
+:func:`shape_reading` (the fractional delay, the curve via effects_maps.table_lookup, the filter via
+:func:`fir_push`, which :func:`fir_series` also streams over a series). :class:`PositionSensor` (streaming and
+array readings), the single env and the native vector env's compiled loop call them; the envs call
+:func:`shape_reading` between the delay line and :func:`sense` when a plant file has a ``[sensor]`` section.
 """
 from __future__ import annotations
 
