@@ -73,11 +73,13 @@ def test_plant_dict_with_sensor_and_quantized_noisy_readings(tmp_path):
     assert abs(info["sensed_angle_deg"] - info["angle_deg"] - math.degrees(0.01)) < 0.1
 
 
-def test_vector_equals_sync_with_reading_maps(tmp_path):
+@pytest.mark.parametrize("num_threads", [1, 2])
+def test_vector_equals_sync_with_reading_maps(tmp_path, num_threads):
+    """Bit for bit, serial and parallel (lockstep groups and an odd one); autoreset refills the maps' state."""
     path = _file(tmp_path, {"offset_rad": 0.002, "gain": 1.01, "delay_s": 0.0035, "curve": CURVE,
                             "filter": FILTER})
     kw = dict(plant=path, episode_s=0.1, observe_current=True, sensor={"noise_std_rad": 2e-4})
-    assert _compare(kw, n_envs=2, n_steps=230)      # autoreset refills the maps' state
+    assert _compare(kw, n_envs=3, n_steps=230, num_threads=num_threads)
 
 
 def test_fir_push_streams_fir_series_and_shape_reset():
