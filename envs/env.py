@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from etb_gym.components.sensor import PositionSensor, PositionSensorParams, delay_push, sense
+from etb_gym.components.sensor import PositionSensor, delay_push, sense, shape_reading, shape_reset
 from etb_gym.jit import py_func
 from etb_gym.plant import read_only
 from etb_gym.variants import PlantVariant
@@ -119,8 +119,11 @@ class ETBEnv(gym.Env):
     * ``observe_current`` (False), ``observe_supply`` (False), ``full_state`` (False): extra observation
       entries. The current reading has 0.01 A noise; the battery reading 0.05 V noise and a 10-bit ADC over
       20 V (0.0195 V steps), set with ``sensor={"supply_noise_std_V": ..., "supply_resolution_V": ...}``.
-    * ``sensor``: dict of ``PositionSensorParams`` overrides, e.g. ``{"noise_std_rad": 0.0}``.
-    * ``plant``: a plant file (.toml/.json, see docs/plant-file.md), a plant dict or a ``Plant``.
+    * ``sensor``: dict of ``PositionSensorParams`` overrides, e.g. ``{"noise_std_rad": 0.0}``; they win over
+      a plant file's ``[sensor]``.
+    * ``plant``: a plant file (.toml/.json, see docs/plant-file.md), a plant dict or a ``Plant``. A
+      ``[sensor]`` section (a twin's reading model) sets the angle sensor's offset, gain and delay and adds
+      its reading curve and filter (options.sensor_setup, docs/envs.md); noise and quantization stay the env's.
     * ``params``: dict of ``"component.field"`` overrides applied to the plant (e.g.
       ``{"friction.coulomb_Nm": 0.25}``).
     * ``supply_V``: battery voltage (None = the plant's, 12 V); ``pwm_mode``: "averaged" or "switching".
@@ -161,12 +164,15 @@ class ETBEnv(gym.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode = {render_mode!r}: expected None or one of {self.metadata['render_modes']}")
         self.render_mode = render_mode
-        p = self.plant = opt.build_plant(model, plant, pwm_mode, control_period_s, params)
+        p, section = opt.build_plant_and_sensor(model, plant, pwm_mode, control_period_s, params)
+        self.plant = p
         self.dt = p.control_period_s
         self.episode_s, self.max_steps = opt.episode_steps(episode_s, self.dt)
         self.supply_V = p.supply.voltage_V if supply_V is None else opt.voltage("supply_V", supply_V)
-        # the sensor is set at construction only; its noise level may be randomized per episode
-        self.sensor = PositionSensor(PositionSensorParams(), **opt.sensor_overrides(sensor))
+        # the sensor is set at construction only (a plant file's [sensor], then sensor=); its noise level may be
+        # randomized per episode
+        sensor_params, reading_shape = opt.sensor_setup(section, sensor, self.dt)
+        self.sensor = PositionSensor(sensor_params)
         self.reward_weights = opt.reward_weights(reward_weights)
         self.randomization = opt.randomization(randomize)
         self._init_reference(reference)
@@ -174,7 +180,8 @@ class ETBEnv(gym.Env):
         self.observe_supply = opt.flag("observe_supply", observe_supply)
         k = self.kernel = EnvKernel.build(p, self.sensor.params, self.reward_weights, max_steps=self.max_steps,
                                           observe_current=self.observe_current,
-                                          observe_supply=self.observe_supply, full_state=self.full_state)
+                                          observe_supply=self.observe_supply, full_state=self.full_state,
+                                          reading_shape=reading_shape)
         self.n_obs = k.n_obs
         self.state_scales = k.state_scales
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
@@ -206,6 +213,8 @@ class ETBEnv(gym.Env):
         self._gain, self._offset, self._q, self._cur_std, self._cur_q, self._sup_std, self._sup_q = \
             (float(v) for v in k.sensor)
         self._supply_index = k.supply_index
+        self._shaped, self._shape = k.has_reading_shape, k.reading_shape      # a plant file's reading maps
+        self._sline, self._spos = np.zeros(k.shape_length), 0
         self._inv_scales = 1.0 / k.state_scales
         self._obs_low, self._obs_high = k.obs_low, k.obs_high
         self._clip_obs = k.clip_obs
@@ -332,6 +341,8 @@ class ETBEnv(gym.Env):
         """Sensed angle [rad] of true angle ``phi`` (delayed, noisy, quantized) and the noise row used."""
         if self._dbuf:
             phi, self._dpos = _delay_push(self._dbuf, self._dpos, phi)
+        if self._shaped:
+            phi, self._spos = shape_reading(phi, self._sline, self._spos, self._shape)
         pos = self._npos
         if pos == NOISE_BLOCK:
             self._noise = self.np_random.standard_normal((NOISE_BLOCK, self.kernel.noise_cols))
@@ -358,6 +369,8 @@ class ETBEnv(gym.Env):
         self._rhs(0.0, x, 0.0, ep.P, self._dx, self._aux)
         self._dbuf = [x.item(0)] * self.kernel.delay_length      # the delay line (delay_push), a list here
         self._dpos = 0
+        if self._shaped:
+            self._spos = shape_reset(self._sline, self._shape, x.item(0))
         self._noise = self.np_random.standard_normal((NOISE_BLOCK, self.kernel.noise_cols))
         self._npos = 0
         r = self._tab.item(0)

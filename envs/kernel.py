@@ -8,8 +8,9 @@ reward weights, the sensor's constants and delay-line length, the observation la
 full-state scales, the box and whether to clip to it) and the info's torque columns. It is immutable; each env
 keeps its own episode state (plant state, delay line, noise block) and passes it to these functions.
 
-The kernels written here are the step reward (:func:`step_reward`); the sensor reading and delay line are
-``etb_gym.components.sensor``'s (:func:`sense`, :func:`delay_push`), the observation scaling
+The kernels written here are the step reward (:func:`step_reward`); the sensor reading, delay line and a
+plant file's reading maps are ``etb_gym.components.sensor``'s (:func:`sense`, :func:`delay_push`,
+:func:`shape_reading`), the observation scaling
 ``etb_gym.envs.observation``'s.
 """
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from etb_gym.components.sensor import PositionSensorParams
+from etb_gym.components.sensor import PositionSensorParams, pack_reading_shape, shape_line_length
 from etb_gym.jit import kernel
 from etb_gym.plant import Plant
 
@@ -83,6 +84,9 @@ class EnvKernel:
     sensor: np.ndarray         # (gain, offset, resolution, current noise std, current resolution,
     #                            supply noise std, supply resolution), sense()'s constants
     delay_length: int          # the angle's delay line: ring-buffer length (0: no delay)
+    reading_shape: np.ndarray  # a twin's reading maps after the delay line (components.sensor.shape_reading's
+    #                            constants, pack_reading_shape: fractional delay, curve, filter; [0, 0, 0]: none)
+    shape_length: int          # the length of shape_reading's state (1 + the filter's taps)
     noise_cols: int            # noise columns per control period: angle, current (, supply)
     observe_current: bool
     observe_supply: bool
@@ -98,9 +102,12 @@ class EnvKernel:
 
     @classmethod
     def build(cls, plant: Plant, sensor: PositionSensorParams, reward_weights: Mapping, *, max_steps: int,
-              observe_current: bool, observe_supply: bool, full_state: bool) -> "EnvKernel":
-        """The kernel of an env on ``plant`` (options already checked, see etb_gym.envs.options)."""
+              observe_current: bool, observe_supply: bool, full_state: bool,
+              reading_shape: np.ndarray | None = None) -> "EnvKernel":
+        """The kernel of an env on ``plant`` (options already checked, see etb_gym.envs.options);
+        ``reading_shape``: a plant file's reading maps (options.sensor_setup), None for none."""
         sp, w = sensor, reward_weights
+        shape = pack_reading_shape() if reading_shape is None else np.array(reading_shape, float)
         n_obs = 4 + observe_current + observe_supply + (plant.n_states if full_state else 0)
         low = np.full(n_obs, -OBS_BOUND, np.float32)
         low[3] = -1.0
@@ -115,6 +122,7 @@ class EnvKernel:
             sensor=np.array([sp.gain, sp.offset_rad, sp.resolution_rad, sp.current_noise_std_A,
                              sp.current_resolution_A, sp.supply_noise_std_V, sp.supply_resolution_V]),
             delay_length=sp.delay_steps,                 # readings d periods old (as PositionSensor)
+            reading_shape=shape, shape_length=shape_line_length(shape),
             noise_cols=2 + observe_supply, observe_current=observe_current, observe_supply=observe_supply,
             full_state=full_state, n_obs=n_obs, supply_index=4 + observe_current,
             state_scales=state_scales(plant), obs_low=low, obs_high=-low,
@@ -128,3 +136,8 @@ class EnvKernel:
     def delay_line(self, angle_rad: float) -> np.ndarray:
         """A fresh delay line (delay_push's ring buffer) filled with ``angle_rad``."""
         return np.full(self.delay_length, angle_rad)
+
+    @property
+    def has_reading_shape(self) -> bool:
+        """The reading has a twin's maps (a fractional delay, a curve or a filter) after the delay line."""
+        return bool(np.any(self.reading_shape != 0.0))

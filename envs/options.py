@@ -9,6 +9,7 @@ from typing import Mapping
 import numpy as np
 
 from etb_gym.components.base import show
+from etb_gym.components.sensor import PositionSensorParams, pack_reading_shape
 from etb_gym.components.supply import SUPPLY_RANGE_V
 from etb_gym.plant import MODELS, Plant, make_plant
 from etb_gym.variants import MIN_COIL_TEMPERATURE_C
@@ -57,22 +58,39 @@ def flag(name, v) -> bool:
 
 def load_plant_spec(plant) -> Plant:
     """A Plant from a path (.toml/.json plant file), a plant description dict, or a Plant."""
-    if isinstance(plant, Plant):
-        return plant
-    if isinstance(plant, (str, Path)):
-        from etb_gym.plantfile import load_plant
+    return load_plant_and_sensor(plant)[0]
 
-        return load_plant(plant)
+
+def load_plant_and_sensor(plant) -> tuple[Plant, dict | None]:
+    """:func:`load_plant_spec` and the plant file's (or dict's) ``[sensor]`` section, checked
+    (components.sensor.sensor_section), or None (a Plant object, or no section)."""
+    if isinstance(plant, Plant):
+        return plant, None
+    if isinstance(plant, (str, Path)):
+        from etb_gym.plantfile import load_plant_and_sensor as load
+
+        return load(plant)
     if isinstance(plant, Mapping):
-        return Plant.from_dict(plant)
+        section = plant.get("sensor")
+        if section is not None:
+            from etb_gym.components.sensor import sensor_section
+
+            section = sensor_section(section)
+        return Plant.from_dict({k: v for k, v in plant.items() if k != "sensor"}), section
     raise ValueError(f"plant = {plant!r}: expected a plant file path (.toml or .json), a plant description "
                      "dict (Plant.to_dict()) or a Plant")
 
 
 def build_plant(model, plant, pwm_mode, control_period_s, params) -> Plant:
     """The env's plant: the model's (or ``plant``), with the PWM mode, control period and overrides applied."""
+    return build_plant_and_sensor(model, plant, pwm_mode, control_period_s, params)[0]
+
+
+def build_plant_and_sensor(model, plant, pwm_mode, control_period_s, params) -> tuple[Plant, dict | None]:
+    """:func:`build_plant` and the ``[sensor]`` section of ``plant`` (:func:`load_plant_and_sensor`), or None."""
+    section = None
     if plant is not None:
-        p = load_plant_spec(plant)
+        p, section = load_plant_and_sensor(plant)
     else:
         if str(model).strip().upper() not in MODELS:
             raise ValueError(f"model = {model!r}: expected one of {list(MODELS)}")
@@ -87,7 +105,7 @@ def build_plant(model, plant, pwm_mode, control_period_s, params) -> Plant:
         if not isinstance(params, Mapping):
             raise ValueError(f"params = {params!r}: expected a dict of 'component.field' overrides")
         p = p.with_params(dict(params))
-    return p
+    return p, section
 
 
 def episode_steps(episode_s, dt) -> tuple[float, int]:
@@ -107,6 +125,31 @@ def sensor_overrides(sensor) -> dict:
     if sensor is not None and not isinstance(sensor, Mapping):
         raise ValueError(f"sensor = {sensor!r}: expected a dict of PositionSensorParams overrides")
     return dict(sensor or {})
+
+
+def sensor_setup(section: dict | None, sensor, dt: float) -> tuple[PositionSensorParams, np.ndarray]:
+    """The env's angle sensor: ``(PositionSensorParams, the packed reading shape)`` (components.sensor
+    pack_reading_shape). In order, later wins: PositionSensorParams' defaults; the plant file's ``[sensor]``
+    ``offset_rad``, ``gain`` and ``delay_s`` (whole control periods to ``delay_steps``, the rest of a period a
+    fractional delay, interpolated); the ``sensor=`` overrides (a ``delay_steps`` there replaces the file's
+    whole delay, fraction included). The file's ``curve`` and ``filter`` always apply; noise and quantization
+    are the env's (PositionSensorParams, ``sensor=``)."""
+    overrides = sensor_overrides(sensor)
+    fraction = 0.0
+    base = {}
+    if section is not None:
+        periods = section["delay_s"] / dt
+        whole = round(periods)
+        if abs(periods - whole) > 1e-9 * max(1.0, periods):
+            whole = math.floor(periods)
+            fraction = periods - whole
+        base = {"offset_rad": section["offset_rad"], "gain": section["gain"], "delay_steps": int(whole)}
+        if "delay_steps" in overrides:
+            fraction = 0.0
+    merged = {**base, **overrides}
+    params = PositionSensorParams().replace(**merged) if merged else PositionSensorParams()
+    curve, filt = (None, None) if section is None else (section["curve"], section["filter"])
+    return params, pack_reading_shape(fraction, curve, filt)
 
 
 def reward_weights(weights) -> dict:

@@ -37,6 +37,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from etb_gym.components.sensor import shape_reset
 from etb_gym.jit import HAVE_NUMBA, kernel
 from etb_gym.plant import read_only
 from etb_gym.threadpool import ensure_thread_pool
@@ -138,6 +139,8 @@ class ETBVectorEnv(VectorEnv):
         self._words = np.zeros((N, 4), np.uint64)        # each sub-env generator's PCG64 state (envs/noise.py)
         self._dbuf = np.zeros((N, kn.delay_length))     # the delay lines (delay_push)
         self._dpos = np.zeros(N, np.int64)
+        self._sline = np.zeros((N, kn.shape_length))   # a plant file's reading maps (shape_reading's state)
+        self._spos = np.zeros(N, np.int64)
         self._autoreset = np.zeros(N, bool)
         self._rows = np.arange(N)
         self._obs = np.zeros((N, kn.n_obs), np.float32)
@@ -153,7 +156,8 @@ class ETBVectorEnv(VectorEnv):
         # vector_step's arguments between the actions and the outputs: the same arrays at every step
         self._step_args = (self._autoreset, self._X, self._P, self._V, self._K, self._AUX, self._T0, self._DX,
                            self._OK, self._duty, kn.dt, kn.substeps, kn.switching, kn.pwm_frequency_hz, self._tab,
-                           kn.max_steps, kn.reward_weights, self._dbuf, self._dpos, self._noise, self._npos,
+                           kn.max_steps, kn.reward_weights, self._dbuf, self._dpos, kn.reading_shape, self._sline,
+                           self._spos, self._noise, self._npos,
                            self._noise_std, self._words, kn.sensor, kn.observe_current, kn.observe_supply,
                            self._state_scale, kn.clip_obs, kn.obs_low, kn.obs_high, self._info_cols)
         ensure_thread_pool()      # before numba's pool starts, or it spins (etb_gym/threadpool.py)
@@ -179,6 +183,7 @@ class ETBVectorEnv(VectorEnv):
             self.kernel.rhs(0.0, self._X[i], 0.0, self._P_read_only[i], self._dx, self._AUX[i])
             self._dbuf[i] = self._X[i, 0]
             self._dpos[i] = 0
+            self._spos[i] = shape_reset(self._sline[i], self.kernel.reading_shape, self._X[i, 0])
             rng.standard_normal(out=self._noise[i])
             pcg_words(rng, self._words[i])
             self._npos[i] = 0
@@ -192,9 +197,9 @@ class ETBVectorEnv(VectorEnv):
         obs = np.empty((rows.size, kn.n_obs), np.float32)
         info = np.empty((len(self._info_keys), rows.size))
         observe_rows(rows, self._X, self._AUX, self._duty, self._V, self._K, kn.dt, self._tab, kn.max_steps,
-                     self._dbuf, self._dpos, self._noise, self._npos, self._noise_std, self._words, kn.sensor,
-                     kn.observe_current, kn.observe_supply, self._state_scale, kn.clip_obs, kn.obs_low, kn.obs_high,
-                     self._info_cols, obs, info)
+                     self._dbuf, self._dpos, kn.reading_shape, self._sline, self._spos, self._noise, self._npos,
+                     self._noise_std, self._words, kn.sensor, kn.observe_current, kn.observe_supply,
+                     self._state_scale, kn.clip_obs, kn.obs_low, kn.obs_high, self._info_cols, obs, info)
         return obs, info
 
     def _info_dict(self, info, mask):

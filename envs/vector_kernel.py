@@ -22,9 +22,9 @@ import hashlib
 import inspect
 import sys
 
-from etb_gym.components import sensor
+from etb_gym.components import effects_maps, sensor
 
-from etb_gym.components.sensor import delay_push, sense
+from etb_gym.components.sensor import delay_push, sense, shape_reading
 from etb_gym.integrate import GROUP
 from etb_gym.jit import HAVE_NUMBA, kernel, py_func
 from etb_gym.kernel_cache import borrow, identity
@@ -47,16 +47,18 @@ def _inlined_kernel(fn):
 
 
 @_inlined_kernel
-def observe_row(b, j, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps, delay_buf, delay_pos, noise,
-                noise_pos, noise_std, noise_words, sensor, observe_current, observe_supply, state_scale, clip,
-                obs_low, obs_high, info_cols, obs, info):
+def observe_row(b, j, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps, delay_buf, delay_pos, shape,
+                shape_line, shape_pos, noise, noise_pos, noise_std, noise_words, sensor, observe_current,
+                observe_supply, state_scale, clip, obs_low, obs_high, info_cols, obs, info):
     """Sub-env ``b``'s reading, observation (written to ``obs[j]``) and info (column ``j`` of ``info``, keys in the
     order INFO_KEYS, torques, t_s): the single env's ``_observe``. ``sensor`` = (gain, offset, resolution, current
-    noise std, current resolution, supply noise std, supply resolution); ``state_scale`` is empty unless the full
+    noise std, current resolution, supply noise std, supply resolution); ``shape``, ``shape_line``, ``shape_pos``:
+    a plant file's reading maps after the delay line (components.sensor.shape_reading); ``state_scale`` is empty unless the full
     state is observed; ``info_cols``: the AUX column of each torque key (-1: no such component, 0). A used-up noise
     block is refilled from the sub-env's PCG64 words first, as the single env draws its next block."""
     phi, omega, cur = X[b, 0], X[b, 1], X[b, 2]
     phi_read, delay_pos[b] = delay_push(delay_buf[b], delay_pos[b], phi)
+    phi_read, shape_pos[b] = shape_reading(phi_read, shape_line[b], shape_pos[b], shape)
     pos = noise_pos[b]
     if pos == NOISE_BLOCK:
         fill_normals(noise[b], noise_words[b])
@@ -95,28 +97,30 @@ def observe_row(b, j, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps, 
 
 
 @kernel
-def observe_rows(rows, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps, delay_buf, delay_pos, noise,
-                 noise_pos, noise_std, noise_words, sensor, observe_current, observe_supply, state_scale, clip,
-                 obs_low, obs_high, info_cols, obs, info):
+def observe_rows(rows, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps, delay_buf, delay_pos, shape,
+                 shape_line, shape_pos, noise, noise_pos, noise_std, noise_words, sensor, observe_current,
+                 observe_supply, state_scale, clip, obs_low, obs_high, info_cols, obs, info):
     """:func:`observe_row` for sub-envs ``rows`` (the resets): row ``b = rows[j]`` to ``obs[j]``, ``info[:, j]``.
     The arrays are borrowed first, as in vector_step (4x faster)."""
     X, AUX, last_duty, supply_V, K, ref_table = borrow(X), borrow(AUX), borrow(last_duty), borrow(supply_V), \
         borrow(K), borrow(ref_table)
     delay_buf, delay_pos, noise, noise_pos = borrow(delay_buf), borrow(delay_pos), borrow(noise), borrow(noise_pos)
+    shape, shape_line, shape_pos = borrow(shape), borrow(shape_line), borrow(shape_pos)
     noise_std, noise_words, sensor, state_scale = borrow(noise_std), borrow(noise_words), borrow(sensor), \
         borrow(state_scale)
     obs_low, obs_high, info_cols, obs, info = borrow(obs_low), borrow(obs_high), borrow(info_cols), borrow(obs), \
         borrow(info)
     for j in range(rows.shape[0]):
         observe_row(rows[j], j, X, AUX, last_duty, supply_V, K, dt, ref_table, max_steps, delay_buf, delay_pos,
-                    noise, noise_pos, noise_std, noise_words, sensor, observe_current, observe_supply, state_scale,
-                    clip, obs_low, obs_high, info_cols, obs, info)
+                    shape, shape_line, shape_pos, noise, noise_pos, noise_std, noise_words, sensor, observe_current,
+                    observe_supply, state_scale, clip, obs_low, obs_high, info_cols, obs, info)
 
 
 # The generated step. group_step / one_step are the composition's control_step_group / control_step_dx.
 TEMPLATE = '''
 def vector_step(duty, ignored, X, P, V, K, AUX, T0, DX, OK, last_duty, dt, n_sub, switching, f_pwm,
-                ref_table, max_steps, weights, delay_buf, delay_pos, noise, noise_pos, noise_std, noise_words, sensor,
+                ref_table, max_steps, weights, delay_buf, delay_pos, shape, shape_line, shape_pos,
+                noise, noise_pos, noise_std, noise_words, sensor,
                 observe_current, observe_supply, state_scale, clip, obs_low, obs_high, info_cols, reward, truncated,
                 obs, info):
     """One step of every sub-env (see etb_gym.envs.vector_kernel). Rows with ``ignored`` set are stepped but not
@@ -128,6 +132,7 @@ def vector_step(duty, ignored, X, P, V, K, AUX, T0, DX, OK, last_duty, dt, n_sub
     duty, ignored, V, K, T0, OK, last_duty = borrow(duty), borrow(ignored), borrow(V), borrow(K), borrow(T0), \
         borrow(OK), borrow(last_duty)
     ref_table, weights, delay_buf, delay_pos = borrow(ref_table), borrow(weights), borrow(delay_buf), borrow(delay_pos)
+    shape, shape_line, shape_pos = borrow(shape), borrow(shape_line), borrow(shape_pos)
     noise, noise_pos, noise_std, noise_words = borrow(noise), borrow(noise_pos), borrow(noise_std), borrow(noise_words)
     sensor, state_scale, obs_low, obs_high = borrow(sensor), borrow(state_scale), borrow(obs_low), borrow(obs_high)
     info_cols, reward, truncated, obs, info = borrow(info_cols), borrow(reward), borrow(truncated), borrow(obs), \
@@ -152,9 +157,9 @@ def vector_step(duty, ignored, X, P, V, K, AUX, T0, DX, OK, last_duty, dt, n_sub
             reward[b] = step_reward(r - X[b, 0] * RAD2DEG, duty[b], last_duty[b], weights[0], weights[1], weights[2])
             last_duty[b] = duty[b]
             truncated[b] = k >= max_steps
-            observe_row(b, b, Xb, Ab, last_duty, V, K, dt, ref_table, max_steps, delay_buf, delay_pos, noise,
-                        noise_pos, noise_std, noise_words, sensor, observe_current, observe_supply, state_scale, clip,
-                        obs_low, obs_high, info_cols, obs, info)
+            observe_row(b, b, Xb, Ab, last_duty, V, K, dt, ref_table, max_steps, delay_buf, delay_pos, shape,
+                        shape_line, shape_pos, noise, noise_pos, noise_std, noise_words, sensor, observe_current,
+                        observe_supply, state_scale, clip, obs_low, obs_high, info_cols, obs, info)
 '''
 _HEADER = '''# generated by etb_gym.envs.vector_kernel for the stepper module {stepper}
 import numpy as np
@@ -212,6 +217,7 @@ def _load_cached(stepper_module: str):
     src = (_HEADER.format(stepper=stepper_module) + "\n@njit(parallel=True, cache=True)" + TEMPLATE
            + "\n@njit(cache=True)" + serial_source())
     # numba's cache does not see a change in a callee's module: the digest covers their sources
-    deps = "".join(inspect.getsource(m) for m in (sys.modules[__name__], kernel_mod, noise, observation, sensor))
+    deps = "".join(inspect.getsource(m) for m in (sys.modules[__name__], kernel_mod, noise, observation, sensor,
+                                                  effects_maps))
     digest = hashlib.sha256((src + deps + numba.__version__).encode()).hexdigest()[:20]
     return import_cached_source(src, "etb_vector", "v", digest, ("vector_step", "vector_step_serial"))

@@ -76,11 +76,19 @@ def save_plant(plant: Plant, path, sensor: dict | None = None) -> Path:
 def load_plant(path) -> Plant:
     """Read a plant file (.toml or .json). Errors name the file and the offending key; the file is only read.
     A ``[sensor]`` section is checked too (:func:`load_sensor` returns it); the plant does not hold it."""
+    return load_plant_and_sensor(path)[0]
+
+
+def load_plant_and_sensor(path) -> tuple[Plant, dict | None]:
+    """A plant file read once: the plant and its ``[sensor]`` section checked
+    (components.sensor.sensor_section's dict), or None where the file has none (the env reads both)."""
+    from .components.sensor import sensor_section
     d = _read(path)
     try:
-        return Plant.from_dict({k: v for k, v in d.items() if k != "sensor"})
+        plant = Plant.from_dict({k: v for k, v in d.items() if k != "sensor"})
     except (ValueError, TypeError, KeyError) as e:
         raise ValueError(f"plant file {path}: {e}") from None
+    return plant, None if d.get("sensor") is None else sensor_section(d["sensor"])
 
 
 def load_sensor(path) -> dict | None:

@@ -9,13 +9,17 @@ data, between the delay and the gain:
     phi_f[k] = sum_j w_j phi_c[k - j]            reading filter (:class:`ReadingFilterParams`, :func:`fir_series`)
     measured = gain * phi_f + offset (+ n, quantized)
 
-with q the resolution (0 = none). The delay is a whole number of control periods. The current sensor
-adds N(0, sigma_i^2) noise and its own quantization. Angles are radians inside; the env and the
-recording files present degrees (documented edges).
+with q the resolution (0 = none). The delay is a whole number of control periods (``delay_steps``); a twin's
+``delay_s`` may leave a fraction f of a period, read as ``(1 - f) phi[k - n] + f phi[k - n - 1]`` (linear
+interpolation between samples). The current sensor adds N(0, sigma_i^2) noise and its own quantization.
+Angles are radians inside; the env and the recording files present degrees (documented edges).
 
 The equation and the delay line are written once, as kernels: :func:`sense` (one reading) and
-:func:`delay_push` (one step of the delay line, a ring buffer). :class:`PositionSensor` (streaming and array
-readings), the single env and the native vector env's compiled loop all call them.
+:func:`delay_push` (one step of the delay line, a ring buffer); the twin's maps for one control period as
+:func:`shape_reading` (the fractional delay, the curve via effects_maps.table_lookup, the filter via
+:func:`fir_push`, which :func:`fir_series` also streams over a series). :class:`PositionSensor` (streaming and
+array readings), the single env and the native vector env's compiled loop call them; the envs call
+:func:`shape_reading` between the delay line and :func:`sense` when a plant file has a ``[sensor]`` section.
 """
 from __future__ import annotations
 
@@ -26,6 +30,7 @@ import numpy as np
 
 from ..jit import kernel, py_func
 from .base import Params, check, non_negative
+from .effects_maps import table_lookup
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,19 +130,92 @@ MAX_FILTER_TAPS = 64
 
 
 @kernel
+def fir_push(buf, pos, value, w, woff, m):
+    """One control period of the causal FIR kernel ``w[woff:woff + m]`` (newest first) over the ring buffer
+    ``buf[1:1 + m]`` (next slot ``pos``; ``buf[0]`` is not used here, see :func:`shape_reading`): stores
+    ``value`` and returns ``(sum_j w[woff + j] * the value j periods old, the next pos)``."""
+    buf[1 + pos] = value
+    tot = 0.0
+    for j in range(m):
+        i = pos - j
+        if i < 0:
+            i += m
+        tot += w[woff + j] * buf[1 + i]
+    pos += 1
+    if pos == m:
+        pos = 0
+    return tot, pos
+
+
+@kernel
 def fir_series(values, weights):
     """A sampled series through the causal FIR kernel ``weights`` (newest first); before the start the input
-    holds ``values[0]`` (a plate at rest), as :func:`delay_series`."""
+    holds ``values[0]`` (a plate at rest), as :func:`delay_series`. Streams :func:`fir_push`."""
     n = values.shape[0]
     out = np.empty_like(values)
     m = weights.shape[0]
+    buf = np.full(m + 1, values[0] if n else 0.0)
+    pos = 0
     for k in range(n):
-        tot = 0.0
-        for j in range(m):
-            i = k - j
-            tot += weights[j] * (values[i] if i >= 0 else values[0])
-        out[k] = tot
+        out[k], pos = fir_push(buf, pos, values[k], weights, 0, m)
     return out
+
+
+# ---------------------------------------------------------------- a twin's reading shape, streamed (the envs)
+@kernel
+def shape_reading(value, line, pos, shape):
+    """The twin's reading maps for one control period, between the whole-period delay line (:func:`delay_push`)
+    and :func:`sense`: the fractional part of the delay, the reading curve, the reading filter (the module
+    docstring's order). ``value``: the angle after the whole-period delay; ``shape``: the constants packed by
+    :func:`pack_reading_shape`; ``line``: this reader's state (``line[0]`` the previous delayed angle,
+    ``line[1:]`` the filter's ring buffer, next slot ``pos``), filled by :func:`shape_reset`. Returns ``(the
+    shaped angle, the next pos)``; with no maps (``shape = [0, 0, 0]``) the angle is returned untouched.
+
+    Fractional delay f (periods): ``(1 - f) * a[k] + f * a[k - 1]``, the linear interpolation of the twin's
+    ``delay_s`` between samples. Curve: ``a + d(a)`` (effects_maps.table_lookup, held beyond the knots)."""
+    f = shape[0]
+    if f > 0.0:
+        prev = line[0]
+        line[0] = value
+        value = (1.0 - f) * value + f * prev
+    nc = int(shape[1])
+    if nc > 0:
+        value = value + table_lookup(value, shape, 2, nc, 2 + nc)
+    o = 2 + 2 * nc
+    m = int(shape[o])
+    if m > 0:
+        value, pos = fir_push(line, pos, value, shape, o + 1, m)
+    return value, pos
+
+
+@kernel
+def shape_reset(line, shape, angle):
+    """Fill a reader's :func:`shape_reading` state for a plate at rest at ``angle`` (the delay line's start):
+    the previous delayed angle is ``angle``, the filter's past inputs the curve's reading of it. Returns the
+    next pos (0)."""
+    line[0] = angle
+    nc = int(shape[1])
+    c = angle + table_lookup(angle, shape, 2, nc, 2 + nc) if nc > 0 else angle
+    for k in range(1, line.shape[0]):
+        line[k] = c
+    return 0
+
+
+def pack_reading_shape(fraction: float = 0.0, curve=None, filter=None) -> np.ndarray:
+    """:func:`shape_reading`'s constants: ``[fraction, n_c, curve angle_rad (n_c), curve error_rad (n_c), m,
+    filter weights (m)]`` (n_c = 0: no curve, m = 0: no filter). ``curve``: effects_maps.SensorMapParams,
+    ``filter``: :class:`ReadingFilterParams`; ``fraction`` in [0, 1) periods."""
+    if not 0.0 <= fraction < 1.0:
+        raise ValueError(f"fraction = {fraction!r} is invalid: expected a fractional delay in [0, 1) periods")
+    c = [] if curve is None else [len(curve.angle_rad), *curve.angle_rad, *curve.error_rad]
+    w = [] if filter is None else [len(filter.weights), *filter.weights]
+    return np.array([float(fraction), *(c or [0]), *(w or [0])], float)
+
+
+def shape_line_length(shape: np.ndarray) -> int:
+    """The length of a :func:`shape_reading` state for the packed ``shape``: 1 + the filter's taps."""
+    nc = int(shape[1])
+    return 1 + int(shape[2 + 2 * nc])
 
 
 _delay_push = py_func(delay_push)      # one scalar step: the plain function beats a compiled call's dispatch
