@@ -349,8 +349,8 @@ def markdown(result, figures) -> str:
     figures = list(figures) + [f for f in r.get("shape_figures", []) if f not in figures]
     lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
     lines += ["", f"The calibrated plant (with the effects that act on the plate) is `{r['calibrated_plant']}`: "
-              "`gym.make(\"ETB-3B-v0\", plant=...)` loads it. Sensor-side effects are in `report.json` (`sensor`) and in "
-              "its `[sensor]` section (`etb_gym.plantfile.load_sensor`).", ""]
+              "`gym.make(\"ETB-3B-v0\", plant=...)` loads it, its `[sensor]` section (the sensor-side effects, also in "
+              "`report.json` `sensor`; `etb_gym.plantfile.load_sensor`) included.", ""]
     return "\n".join(lines)
 
 
