@@ -166,9 +166,10 @@ def test_every_fitted_candidate_switched_off_does_nothing():
 def test_a_candidate_whose_own_removal_costs_nothing_is_not_accepted(monkeypatch):
     """explain._accept's footprint guard (measured: a clean closed loop "explained" by a coil heating pinned at
     its bounds, z 11.4 -> 1.4, its heating a few hundredths of a kelvin). The statistic that accepts a candidate
-    (the angle's mean square, or a closed loop's persistent z) is re-evaluated with its effect switched off in
-    the full fit: if less than FOOTPRINT_SHARE of the gain comes back, the gain was the refitted nominal
-    parameters' or the composition's, and the candidate is refused; a real effect gives it all back."""
+    (the angle's mean square, or a closed loop's persistent z) is re-evaluated without its effect: switched off
+    in the full fit, and the current model refitted from the full fit's values. If less than FOOTPRINT_SHARE of
+    the gain comes back, the gain was the refitted nominal parameters' or the composition's: the candidate is
+    refused, and a refit better than the current model is handed back to go on from."""
     from types import SimpleNamespace as NS
 
     from etb_gym.diagnose import explain as E
@@ -178,20 +179,25 @@ def test_a_candidate_whose_own_removal_costs_nothing_is_not_accepted(monkeypatch
     monkeypatch.setattr(E, "switched_off", lambda spec, x, cid: (spec, "off"))
     spec = NS(candidates=())
     cur = E.F.FitResult(spec, "cur", 1.0, 10, None, 0)
-    runner = NS(map=lambda tasks: [("full", 1.0, 10, None, 40, 1.0, None)])
+    fits = {("x",): ("full", 0.4, 10, None, 40, 1.0, None), (): ("refit", 0.8, 10, None, 40, 1.0, None)}
+    runner = NS(map=lambda tasks: [fits[tasks[0][3]]])    # the candidate's full fit, or the current model's refit
     data = NS(recs=[NS(residual="replay")])
     ctx = E._Ctx(data, runner, None, {}, (), None, lambda *a: None, None)
     gains = [(0.3, -50.0, "x", NS(spec=spec, x="cur"))]
 
-    def accept(ms_off, z_off=None):
-        ms["off"] = ms_off
+    def accept(ms_off, ms_refit=1.50, z_off=None, z_refit=11.4):
+        ms.update(off=ms_off, refit=ms_refit)
         if z_off is None:
             return E._accept(ctx, cur, gains, None, 0)
-        z["off"] = z_off
+        z.update(off=z_off, refit=z_refit)
         return E._accept(ctx, cur, gains, None, 0, resolves=lambda fr: True, persistent=lambda fr: z[fr.x])
-    assert accept(1.60) is not None                       # switched off, the whole gain (and more) comes back
-    assert accept(1.30) is not None                       # 56 % of it
-    assert accept(1.10) is None                           # 11 %: the refit did it
-    assert accept(1.10, z_off=11.0) is not None           # ... but the structure is the effect's own
-    assert accept(1.10, z_off=1.5) is None                # neither: a spurious fit
+    assert accept(1.60)[0] == "x"                         # switched off, the whole gain (and more) comes back
+    assert accept(1.30)[0] == "x"                         # 56 % of it
+    refused = accept(1.10)                                # 11 %: the refit did it
+    assert refused[0] is None and refused[2].x == "refit"
+    assert accept(1.60, ms_refit=1.08)[0] is None         # the fit leaned on the effect; refitted, nothing left
+    assert accept(1.10, z_off=11.0)[0] == "x"             # ... but the structure is the effect's own
+    assert accept(1.10, z_off=1.5)[0] is None             # neither: a spurious fit
+    fits[()] = ("refit", 1.2, 10, None, 40, 1.0, None)
+    assert accept(1.10) is None                           # refused, and the refit is no better than the current
     assert E.own_share(1.0, 1.2, 5.0) == 0.0              # no gain: no share

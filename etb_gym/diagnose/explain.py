@@ -412,20 +412,30 @@ def _angle_ms(fr: F.FitResult, data: Data) -> float:
     return float(a @ a) / max(a.size, 1)
 
 
-def _footprint(ctx: _Ctx, c: str, cur: F.FitResult, full: F.FitResult, route: str, persistent) -> float:
+def _refit_without(ctx: _Ctx, cur: F.FitResult, full: F.FitResult) -> F.FitResult | None:
+    """The current model (without the candidate) refitted as long as the candidate's full fit (FULL_NFEV) from
+    that fit's values of its own parameters (the nominal ones and the effects already accepted); None if it
+    cannot be simulated."""
+    active = tuple(c.id for c in cur.spec.candidates)
+    r = ctx.runner.map([("fit", ctx.base_dict, ctx.nominal, active, full.x[:len(cur.x)], FULL_NFEV)])[0]
+    return None if isinstance(r, Skipped) else F.FitResult(cur.spec, *r)
+
+
+def _footprint(ctx: _Ctx, c: str, cur: F.FitResult, full: F.FitResult, route: str, persistent,
+               refit: F.FitResult | None) -> float:
     """The share of the gain that accepted ``c`` (route "angle": the angle residual's mean square; "structure":
-    the closed loop's persistent z) that its own effect carries (:func:`own_share`)."""
+    the closed loop's persistent z) that its own effect carries (:func:`own_share`). Without the effect the
+    statistic is the better of two models: the full fit with the effect switched off (:func:`switched_off`:
+    the composition and the refitted nominal parameters kept) and ``refit`` (:func:`_refit_without`: the
+    nominal parameters free to take back what they had leaned on the effect for)."""
     spec_off, x_off = switched_off(full.spec, full.x, c)
-    off = F.FitResult(spec_off, x_off, full.rss, full.m, None, 0)
-    if route == "structure":
-        z = (persistent(cur), persistent(full), persistent(off))
-        share = own_share(*z)
-        what = f"persistent z {z[0]:.1f} -> {z[1]:.1f}, {z[2]:.1f} with it switched off"
-    else:
-        ms = (_angle_ms(cur, ctx.data), _angle_ms(full, ctx.data), _angle_ms(off, ctx.data))
-        share = own_share(*ms)
-        what = (f"angle mean square {ms[0]:.3f} -> {ms[1]:.3f} noise units, {ms[2]:.3f} with it switched off")
-    ctx.log(f"  {c}: footprint: {what}; its own share of the gain {share:.0%}")
+    models = [cur, full, F.FitResult(spec_off, x_off, full.rss, full.m, None, 0)] + ([refit] if refit else [])
+    stat = persistent if route == "structure" else (lambda fr: _angle_ms(fr, ctx.data))
+    v = [stat(m) for m in models]
+    share = own_share(v[0], v[1], min(v[2:]))
+    name = "persistent z" if route == "structure" else "angle mean square (noise units)"
+    ctx.log(f"  {c}: footprint: {name} {v[0]:.3f} -> {v[1]:.3f}; without its effect {v[2]:.3f} (switched off)"
+            + (f", {v[3]:.3f} (the current model refitted)" if refit else "") + f": its own share {share:.0%}")
     return share
 
 
@@ -442,9 +452,14 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolv
     FOOTPRINT_SHARE of the gain must come back (:func:`own_share`, on the statistic of the rule that accepted
     it); a candidate whose own removal costs nothing explained nothing (measured: a clean closed loop, 3B seed
     17, "explained" by a coil heating at its bounds, C_th 2000 J/K and R_th 0.2 K/W, a few hundredths of a
-    kelvin in 6 s; docs/diagnosis.md round 15). ``persistent``: the z of a model (needed with ``resolves``).
-    Returns (its id, held-out gain, full fit), or None."""
+    kelvin in 6 s; docs/diagnosis.md round 15). Without the effect means the better of the full fit with the
+    effect switched off and the current model refitted from the full fit's values (_footprint: a fit that leans
+    its nominal parameters on a sensor offset gives the gain back when the offset alone is switched off, and not
+    when the nominal parameters may move back). ``persistent``: the z of a model (needed with ``resolves``).
+    Returns (its id, held-out gain, full fit); (None, None, the current model refitted) when candidates were
+    refused by the footprint guard and that refit fits better than the current model; or None."""
     active = tuple(c.id for c in cur.spec.candidates)
+    better = None
     for g, d, c, fr in gains:
         r = ctx.runner.map([("fit", ctx.base_dict, ctx.nominal, active + (c,), fr.x, FULL_NFEV, len(cur.x))])[0]
         if isinstance(r, Skipped):
@@ -452,6 +467,7 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolv
             continue
         full = F.FitResult(fr.spec, *r)
         ratio = angle_rms_ratio(full, cur, ctx.data)
+
         def routes():          # the rules that accept it, each checked when the one before did not
             if c not in structure_only and ratio <= 1.0 - RMS_MIN_GAIN:
                 yield "angle", f"angle RMS x{ratio:.2f}"
@@ -460,21 +476,25 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolv
             if resolves is not None and resolves(full):
                 yield "structure", (f"angle RMS x{ratio:.2f}, but it accounts for the persistent structure of the "
                                     "closed loop's residuals (current, steady motion)")
-        refused = []
+        refused, refit = [], None
         for route, why in routes():
-            if _footprint(ctx, c, cur, full, route, persistent) >= FOOTPRINT_SHARE:
+            if not refused:
+                refit = _refit_without(ctx, cur, full)
+            if _footprint(ctx, c, cur, full, route, persistent, refit) >= FOOTPRINT_SHARE:
                 ctx.log(f"  {c}: {why}: accepted")
                 return c, g, full
             refused.append(why)
         if refused:
             ctx.log(f"  {c}: {'; '.join(refused)}; but its own effect carries less than {FOOTPRINT_SHARE:.0%} of "
                     "that gain (the refitted nominal parameters or the composition do): not accepted")
+            if refit is not None and refit.rss < (better.rss if better is not None else cur.rss):
+                better = refit
         else:
             ctx.log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f})"
                     + (" and the persistent structure stays" if resolves is not None else "") + ": not accepted")
         if resolves is None and not (evidence is not None and c == evidence["winner"]):
-            return None                     # (the physics' choice falling short lets the next one try)
-    return None
+            break                           # (the physics' choice falling short lets the next one try)
+    return (None, None, better) if better is not None else None
 
 
 def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, significant, max_effects: int = 3,
@@ -544,6 +564,11 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         if acc is None:
             break
         c, g, full = acc
+        if c is None:       # the gain was the current model's own, refitted: take the refit, claim nothing
+            log(f"  the current model refitted from the refused fit's values: RSS {cur.rss:.1f} -> {full.rss:.1f}; "
+                "the selection goes on from it")
+            cur = full
+            continue
         if evidence is not None and evidence["winner"] != c:
             evidence = dict(evidence, note=f"the formula of {evidence['winner']} did not pass the fit on all the "
                                            f"data; {c} taken")
