@@ -169,7 +169,7 @@ def test_a_candidate_whose_own_removal_costs_nothing_is_not_accepted(monkeypatch
     (the angle's mean square, or a closed loop's persistent z) is re-evaluated without its effect: switched off
     in the full fit, and the current model refitted from the full fit's values. If less than FOOTPRINT_SHARE of
     the gain comes back, the gain was the refitted nominal parameters' or the composition's: the candidate is
-    refused, and a refit better than the current model is handed back to go on from."""
+    refused, and a refit better than the current model is handed back to start the round again from."""
     from types import SimpleNamespace as NS
 
     from etb_gym.diagnose import explain as E

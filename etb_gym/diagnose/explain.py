@@ -456,10 +456,11 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolv
     effect switched off and the current model refitted from the full fit's values (_footprint: a fit that leans
     its nominal parameters on a sensor offset gives the gain back when the offset alone is switched off, and not
     when the nominal parameters may move back). ``persistent``: the z of a model (needed with ``resolves``).
-    Returns (its id, held-out gain, full fit); (None, None, the current model refitted) when candidates were
-    refused by the footprint guard and that refit fits better than the current model; or None."""
+    Returns (its id, held-out gain, full fit); (None, None, the current model refitted) when a candidate was
+    refused by the footprint guard and that refit fits better than the current model (the round's candidates
+    were all judged against a model short of its own optimum: the selection starts the round again from the
+    refit); or None."""
     active = tuple(c.id for c in cur.spec.candidates)
-    better = None
     for g, d, c, fr in gains:
         r = ctx.runner.map([("fit", ctx.base_dict, ctx.nominal, active + (c,), fr.x, FULL_NFEV, len(cur.x))])[0]
         if isinstance(r, Skipped):
@@ -487,14 +488,14 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolv
         if refused:
             ctx.log(f"  {c}: {'; '.join(refused)}; but its own effect carries less than {FOOTPRINT_SHARE:.0%} of "
                     "that gain (the refitted nominal parameters or the composition do): not accepted")
-            if refit is not None and refit.rss < (better.rss if better is not None else cur.rss):
-                better = refit
+            if refit is not None and refit.rss < cur.rss:
+                return None, None, refit    # every candidate was judged against a model short of its optimum
         else:
             ctx.log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f})"
                     + (" and the persistent structure stays" if resolves is not None else "") + ": not accepted")
         if resolves is None and not (evidence is not None and c == evidence["winner"]):
-            break                           # (the physics' choice falling short lets the next one try)
-    return (None, None, better) if better is not None else None
+            return None                     # (the physics' choice falling short lets the next one try)
+    return None
 
 
 def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, significant, max_effects: int = 3,
