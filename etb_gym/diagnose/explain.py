@@ -22,7 +22,10 @@ One round:
               RMS_MIN_GAIN (a closed loop's replay drifts through stick-slip episodes; a candidate that bends to
               such drift wins a little held-out error on a clean recording but barely changes its RMS), or, in
               open loop, halves the angle residual's excess over the noise floor (_excess_down: near the noise
-              floor no model lowers the RMS by RMS_MIN_GAIN);
+              floor no model lowers the RMS by RMS_MIN_GAIN); in every case only if its own effect carries at
+              least FOOTPRINT_SHARE of the gain that accepts it (the footprint guard, _accept: its effect switched
+              off, or the current model refitted, gives that much back); a refused candidate whose refit of the
+              current model fits better starts the round again from that refit;
               otherwise stop: nothing in the library explains it
 Rounds repeat (two or more concurrent effects) while the remaining residual is significant.
 
