@@ -3,6 +3,7 @@ loops (issue 15, round 12): unit tests of unmodelled.catalogue_alternative's clo
 generic table matters when the loop holds the angle, and of the probe for a ripple that scales with the
 current. No simulation: the fits are stand-ins."""
 import numpy as np
+import pytest
 
 from diagnose_stubs import Alt as _Alt
 from diagnose_stubs import Cur as _Cur
@@ -117,3 +118,86 @@ def test_near_the_noise_floor_halving_the_excess_accepts_in_open_loop(monkeypatc
     assert not E._excess_down(fits["fit"], fits["old"], closed)
     ms["old"] = 0.95                                                  # already below the noise floor: nothing to halve
     assert not E._excess_down(fits["fit"], fits["old"], open_loop)
+
+
+def test_every_fitted_candidate_switched_off_does_nothing():
+    """explain.switched_off (the footprint guard's counterfactual): with Candidate.off applied, every fitted
+    family's effect adds no torque, voltage or inductance at any state it can reach, and a sensor map reads the
+    true angle; the nominal parameters and the composition (the effect's states) are kept. No simulation: the
+    kernels' plain-Python functions on a grid of (angle, speed, current)."""
+    from etb_gym import make_plant
+    from etb_gym.diagnose import explain as E
+    from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.model import Spec
+    from etb_gym.jit import py_func
+
+    base = Spec(make_plant("3B"))
+    n = len(base.params)
+    for cid, c in CANDIDATES.items():
+        if not c.fit:
+            continue
+        spec = base.with_candidate(c)
+        x = np.linspace(0.3, 0.9, len(spec.params))          # a fit somewhere away from the start
+        spec_off, x_off = E.switched_off(spec, x, cid)
+        assert np.array_equal(x_off[:n], x[:n]), cid          # the nominal parameters as fitted
+        plant, sensor = spec_off.build(x_off)
+        assert [type(k) for k in plant.components] == [type(k) for k in spec.build(x)[0].components], cid
+        if c.sensor:
+            t = np.linspace(0.0, 1.0, 101)
+            a = 40.0 + 30.0 * np.sin(7.0 * t)
+            assert np.allclose(sensor.apply(t, a), a), cid
+            continue
+        e = plant.effects[-1]
+        assert type(e) is c.component, cid
+        p, kern = e.param_vector(), py_func(e.kernel)
+        for phi in np.radians([-1.0, 2.0, 6.0, 30.0, 60.0, 89.5, 91.0]):
+            for omega in (-3.0, -0.01, 0.0, 0.02, 5.0):
+                for i in (-2.0, 0.0, 0.7, 6.0):
+                    for s0 in (0.0,) if e.advance is not None else (0.0, 0.5):
+                        s = np.full(len(e.state_names), s0)
+                        if e.advance is not None:         # a bristle: the state it reaches from rest
+                            py_func(e.advance)(1.0, 0.0, phi, omega, i, 0.0, s, p)
+                        out = kern(0.0, phi, omega, i, 0.0, s, p, np.zeros(len(s)))
+                        assert np.allclose(out, 0.0, atol=1e-9), (cid, phi, omega, i, s0, out)
+    with pytest.raises(ValueError, match="sensor_quantization"):
+        E.switched_off(base, np.zeros(n), "sensor_quantization")
+
+
+def test_a_candidate_whose_own_removal_costs_nothing_is_not_accepted(monkeypatch):
+    """explain._accept's footprint guard (measured: a clean closed loop "explained" by a coil heating pinned at
+    its bounds, z 11.4 -> 1.4, its heating a few hundredths of a kelvin). The statistic that accepts a candidate
+    (the angle's mean square, or a closed loop's persistent z) is re-evaluated without its effect: switched off
+    in the full fit, and the current model refitted from the full fit's values. If less than FOOTPRINT_SHARE of
+    the gain comes back, the gain was the refitted nominal parameters' or the composition's: the candidate is
+    refused, and a refit better than the current model is handed back to start the round again from."""
+    from types import SimpleNamespace as NS
+
+    from etb_gym.diagnose import explain as E
+    ms = {"cur": 1.50, "full": 1.05}                      # angle mean square in noise units: x0.84 RMS
+    z = {"cur": 11.4, "full": 1.4}
+    monkeypatch.setattr(E.F, "evaluate", lambda spec, data, x, with_current: np.full(10, np.sqrt(ms[x])))
+    monkeypatch.setattr(E, "switched_off", lambda spec, x, cid: (spec, "off"))
+    spec = NS(candidates=())
+    cur = E.F.FitResult(spec, "cur", 1.0, 10, None, 0)
+    fits = {("x",): ("full", 0.4, 10, None, 40, 1.0, None), (): ("refit", 0.8, 10, None, 40, 1.0, None)}
+    runner = NS(map=lambda tasks: [fits[tasks[0][3]]])    # the candidate's full fit, or the current model's refit
+    data = NS(recs=[NS(residual="replay")])
+    ctx = E._Ctx(data, runner, None, {}, (), None, lambda *a: None, None)
+    gains = [(0.3, -50.0, "x", NS(spec=spec, x="cur"))]
+
+    def accept(ms_off, ms_refit=1.50, z_off=None, z_refit=11.4):
+        ms.update(off=ms_off, refit=ms_refit)
+        if z_off is None:
+            return E._accept(ctx, cur, gains, None, 0)
+        z.update(off=z_off, refit=z_refit)
+        return E._accept(ctx, cur, gains, None, 0, resolves=lambda fr: True, persistent=lambda fr: z[fr.x])
+    assert accept(1.60)[0] == "x"                         # switched off, the whole gain (and more) comes back
+    assert accept(1.30)[0] == "x"                         # 56 % of it
+    refused = accept(1.10)                                # 11 %: the refit did it
+    assert refused[0] is None and refused[2].x == "refit"
+    assert accept(1.60, ms_refit=1.08)[0] is None         # the fit leaned on the effect; refitted, nothing left
+    assert accept(1.10, z_off=11.0)[0] == "x"             # ... but the structure is the effect's own
+    assert accept(1.10, z_off=1.5)[0] is None             # neither: a spurious fit
+    fits[()] = ("refit", 1.2, 10, None, 40, 1.0, None)
+    assert accept(1.10) is None                           # refused, and the refit is no better than the current
+    assert E.own_share(1.0, 1.2, 5.0) == 0.0              # no gain: no share

@@ -61,6 +61,10 @@ class Candidate:
     # its small-parameter effect is, to first order, a change of a nominal parameter the calibration has already
     # fitted: its scan re-solves the nominal parameters at each point in open loop too (fit.fit, profile_scan)
     profiled: bool = False
+    # the effect switched off with its composition kept (states, segment restarts, the observer's structure):
+    # ((effect field, value or plant key), ...); a plant key (a str, as in ``ties``) takes the plant's own value.
+    # explain.switched_off uses it for the footprint guard (every fitted family has one)
+    off: tuple = ()
 
     @property
     def sensor(self) -> bool:
@@ -133,27 +137,32 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
     Candidate("coil_heating", "electrical", fx.CoilHeating.description,
               (P("heat_capacity_J_per_K", 20.0, 0.5, 2000.0, 10.0, "J/K", ref="power_W"),
                P("thermal_resistance_K_per_W", 5.0, 0.2, 200.0, 5.0, "K/W", ref="inv_power_W")),
-              fx.CoilHeating, ties=(("cold_resistance_ohm", "drive.resistance_ohm"),)),
+              fx.CoilHeating, ties=(("cold_resistance_ohm", "drive.resistance_ohm"),),
+              off=(("temperature_coefficient_per_K", 0.0),)),
     Candidate("supply_drop", "electrical", fx.SupplyDrop.description,
               (P("series_resistance_ohm", 0.02, -0.5, 3.0, 0.1, "ohm", ref="resistance_ohm"),
                P("forward_drop_V", 0.05, -1.0, 3.0, 0.2, "V"),
                # the current over which the forward drop builds up is the rig's switch or diode, not a constant
                # (docs/diagnosis.md, open loop round 13: a diode-like drop with a 0.05-0.3 A knee)
-               P("forward_current_A", 0.05, 0.005, 1.0, 0.05, "A", ref="current_A")), fx.SupplyDrop),
+               P("forward_current_A", 0.05, 0.005, 1.0, 0.05, "A", ref="current_A")), fx.SupplyDrop,
+              off=(("series_resistance_ohm", 0.0), ("forward_drop_V", 0.0))),
     Candidate("torque_constant_error", "electrical", fx.TorqueConstantError.description,
-              (P("delta_Nm_per_A", 0.0, -0.08, 0.08, 0.01, "N m/A", ref="torque_constant_Nm_per_A"),), fx.TorqueConstantError),
+              (P("delta_Nm_per_A", 0.0, -0.08, 0.08, 0.01, "N m/A", ref="torque_constant_Nm_per_A"),), fx.TorqueConstantError,
+              off=(("delta_Nm_per_A", 0.0),)),
     Candidate("inductance_saturation", "electrical", fx.InductanceSaturation.description,
               (P("inductance_drop_H", 0.001, -0.02, 0.0045, 0.002, "H", ref="inductance_H",
                  cap="min_inductance_H"),
-               P("saturation_current_A", 1.5, 0.2, 10.0, 1.0, "A", ref="current_A")), fx.InductanceSaturation),
+               P("saturation_current_A", 1.5, 0.2, 10.0, 1.0, "A", ref="current_A")), fx.InductanceSaturation,
+              off=(("inductance_drop_H", 0.0),)),
     Candidate("shaft_flux_loss", "magnetic", fx.ShaftFluxLoss.description,
               (P("loss_at_open_Nm_per_A", 0.01, -0.05, 0.12, 0.01, "N m/A", ref="torque_constant_Nm_per_A"),
-               P("exponent", 2.0, 0.5, 8.0, 1.0, "1")), fx.ShaftFluxLoss),
+               P("exponent", 2.0, 0.5, 8.0, 1.0, "1")), fx.ShaftFluxLoss, off=(("loss_at_open_Nm_per_A", 0.0),)),
     Candidate("spring_asymmetry", "mechanical", fx.SpringAsymmetry.description,
               (P("closing_preload_delta_Nm", 0.0, -0.14, 0.3, 0.02, "N m", ref="preload_Nm"),
                P("closing_rate_delta_Nm_per_rad", 0.0, -0.3, 1.5, 0.2, "N m/rad", ref="rate_Nm_per_rad")), fx.SpringAsymmetry,
               ties=(("limp_home_rad", "spring.limp_home_rad"),
-                    ("limp_home_compliance_rad", "spring.limp_home_compliance_rad"))),
+                    ("limp_home_compliance_rad", "spring.limp_home_compliance_rad")),
+              off=(("closing_preload_delta_Nm", 0.0), ("closing_rate_delta_Nm_per_rad", 0.0))),
     Candidate("backlash", "mechanical", fx.Backlash.description,
               (P("play_rad", 0.004, 0.0, 0.06, 0.003, "rad"),), fx.Backlash,
               ties=(("limp_home_rad", "spring.limp_home_rad"), ("preload_Nm", "spring.preload_Nm"),
@@ -161,7 +170,7 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
                     ("limp_home_compliance_rad", "spring.limp_home_compliance_rad"),
                     ("limp_home_damping_Nm_s_per_rad", "spring.limp_home_damping_Nm_s_per_rad")),
               # outside the play the springs act at d - b sign d: exactly a preload lowered by R_F b
-              profiled=True),
+              profiled=True, off=(("play_rad", 0.0),)),
     Candidate("end_stop_compliance", "mechanical", fx.EndStopCompliance.description,
               (P("open_rad", R(90.0), R(84.0), R(96.0), R(0.5), "rad", ref="open_stop_rad"),
                P("closed_rad", 0.0, R(-3.0), R(3.0), R(0.2), "rad", ref="closed_stop_rad"),
@@ -169,20 +178,26 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
               ties=(("nominal_closed_rad", "stops.closed_rad"), ("nominal_open_rad", "stops.open_rad"),
                     ("nominal_stiffness_Nm_per_rad", "stops.stiffness_Nm_per_rad"),
                     ("nominal_damping_Nm_s_per_rad", "stops.damping_Nm_s_per_rad"),
-                    ("damping_Nm_s_per_rad", "stops.damping_Nm_s_per_rad"))),
+                    ("damping_Nm_s_per_rad", "stops.damping_Nm_s_per_rad")),
+              off=(("open_rad", "stops.open_rad"), ("closed_rad", "stops.closed_rad"),
+                   ("stiffness_Nm_per_rad", "stops.stiffness_Nm_per_rad"))),
     Candidate("airflow_torque", "mechanical", fx.AirflowTorque.description,
               (P("quadratic_Nm", 0.0, -0.6, 0.6, 0.02, "N m", ref="stall_torque_Nm"),
-               P("cubic_Nm", 0.0, -0.6, 0.6, 0.02, "N m", ref="stall_torque_Nm")), fx.AirflowTorque),
+               P("cubic_Nm", 0.0, -0.6, 0.6, 0.02, "N m", ref="stall_torque_Nm")), fx.AirflowTorque,
+              off=(("quadratic_Nm", 0.0), ("cubic_Nm", 0.0))),
     Candidate("stribeck_friction", "friction", fx.StribeckFriction.description,
               (P("stiction_Nm", 0.01, 0.0, 0.4, 0.02, "N m", ref="friction_Nm"),
-               P("stribeck_velocity_rad_s", 0.05, 0.002, 3.0, 0.05, "rad/s")), fx.StribeckFriction),
+               P("stribeck_velocity_rad_s", 0.05, 0.002, 3.0, 0.05, "rad/s")), fx.StribeckFriction,
+              off=(("stiction_Nm", 0.0),)),
     Candidate("angle_dependent_friction", "friction", fx.AngleDependentFriction.description,
               (P("slope_Nm", 0.0, -0.3, 0.3, 0.02, "N m", ref="friction_Nm"),
-               P("curvature_Nm", 0.0, -0.8, 0.8, 0.05, "N m", ref="friction_Nm")), fx.AngleDependentFriction),
+               P("curvature_Nm", 0.0, -0.8, 0.8, 0.05, "N m", ref="friction_Nm")), fx.AngleDependentFriction,
+              off=(("slope_Nm", 0.0), ("curvature_Nm", 0.0))),
     Candidate("sensor_offset_gain", "sensing", "position sensor offset or gain error",
-              (P("offset_deg", 0.0, -10.0, 10.0, 0.1, "deg"), P("gain", 1.0, 0.7, 1.3, 0.01, "1"))),
+              (P("offset_deg", 0.0, -10.0, 10.0, 0.1, "deg"), P("gain", 1.0, 0.7, 1.3, 0.01, "1")),
+              off=(("offset_deg", 0.0), ("gain", 1.0))),
     Candidate("sensor_delay", "sensing", "transport delay in the position measurement",
-              (P("delay_s", 0.001, 0.0, 0.05, 0.002, "s"),)),
+              (P("delay_s", 0.001, 0.0, 0.05, 0.002, "s"),), off=(("delay_s", 0.0),)),
     Candidate("sensor_quantization", "sensing", "position sensor resolution coarser than assumed", ()),
 )}
 

@@ -22,7 +22,10 @@ One round:
               RMS_MIN_GAIN (a closed loop's replay drifts through stick-slip episodes; a candidate that bends to
               such drift wins a little held-out error on a clean recording but barely changes its RMS), or, in
               open loop, halves the angle residual's excess over the noise floor (_excess_down: near the noise
-              floor no model lowers the RMS by RMS_MIN_GAIN);
+              floor no model lowers the RMS by RMS_MIN_GAIN); in every case only if its own effect carries at
+              least FOOTPRINT_SHARE of the gain that accepts it (the footprint guard, _accept: its effect switched
+              off, or the current model refitted, gives that much back); a refused candidate whose refit of the
+              current model fits better starts the round again from that refit;
               otherwise stop: nothing in the library explains it
 Rounds repeat (two or more concurrent effects) while the remaining residual is significant.
 
@@ -65,6 +68,7 @@ SCREEN_NFEV = 12
 RIVAL_CV_SHARE = 0.5     # rivals for the discrimination: formula held-out gain >= this share of the leader's
 SCREEN_SUBSTEPS = 10     # second-order stepper: 10 substeps beat the first-order stepper's 20 (docs/model.md)
 FULL_NFEV = 40
+FOOTPRINT_SHARE = 0.5    # the accepted gain's share that the effect itself must carry (_accept, own_share)
 
 _CTX: dict = {}
 
@@ -372,13 +376,93 @@ def _excess_down(new: F.FitResult, old: F.FitResult, data: Data) -> bool:
     return ms_old > 1.0 and ms_new - 1.0 <= (1.0 - EXCESS_MIN_GAIN) * (ms_old - 1.0)
 
 
-def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolves=None, structure_only=()):
+def switched_off(spec: Spec, x, cid: str) -> tuple[Spec, np.ndarray]:
+    """The model (``spec``, ``x``) with candidate ``cid``'s effect switched off and everything else kept: its
+    fitted parameters moved to, and its fixed fields overridden by, the values of ``Candidate.off`` (a plant key
+    there takes the plant's own value: a stop's compliance is off at the nominal stop); the other parameters,
+    nominal ones included, stay at ``x``. The composition is kept (the effect's states, the segment restarts and
+    the observer's structure), so what changes is the effect's own action and nothing else."""
+    c = next((k for k in spec.candidates if k.id == cid), None)
+    if c is None or not c.off:
+        raise ValueError(f"switched_off: {cid!r} is not an active candidate that declares its 'off' values "
+                         f"(active: {', '.join(k.id for k in spec.candidates) or 'none'})")
+    pd = spec.base.params_dict()
+    vals = {f: float(pd[v]) if isinstance(v, str) else float(v) for f, v in c.off}
+    x = np.array(x, float, copy=True)
+    for k, (owner, p) in enumerate(spec.params):
+        if owner == cid and p.name in vals:
+            x[k] = (vals[p.name] - p.init) / p.scale
+    fitted = {p.name for p in c.fit}
+    fixed = tuple((f, v) for f, v in vals.items() if f not in fitted)
+    if fixed:
+        c_off = dataclasses.replace(c, fixed=tuple(c.fixed) + fixed)
+        spec = Spec(spec.base, tuple(c_off if k is c else k for k in spec.candidates), spec.nominal)
+    return spec, x
+
+
+def own_share(before: float, full: float, off: float) -> float:
+    """The share of a gain that the effect carries itself: a statistic (lower is better) went ``before`` ->
+    ``full`` when the candidate was added and refitted, and comes back to ``off`` when its effect alone is
+    switched off in the full fit (:func:`switched_off`). 1: its removal gives the whole gain back (or more: the
+    refitted nominal parameters lean on it); 0: the gain was the refitted nominal parameters' or the
+    composition's. No gain: 0."""
+    gain = before - full
+    return (off - full) / gain if gain > 0.0 else 0.0
+
+
+def _angle_ms(fr: F.FitResult, data: Data) -> float:
+    a = F.evaluate(fr.spec, data, fr.x, with_current=False)
+    return float(a @ a) / max(a.size, 1)
+
+
+def _refit_without(ctx: _Ctx, cur: F.FitResult, full: F.FitResult) -> F.FitResult | None:
+    """The current model (without the candidate) refitted as long as the candidate's full fit (FULL_NFEV) from
+    that fit's values of its own parameters (the nominal ones and the effects already accepted); None if it
+    cannot be simulated."""
+    active = tuple(c.id for c in cur.spec.candidates)
+    r = ctx.runner.map([("fit", ctx.base_dict, ctx.nominal, active, full.x[:len(cur.x)], FULL_NFEV)])[0]
+    return None if isinstance(r, Skipped) else F.FitResult(cur.spec, *r)
+
+
+def _footprint(ctx: _Ctx, c: str, cur: F.FitResult, full: F.FitResult, route: str, persistent,
+               refit: F.FitResult | None) -> float:
+    """The share of the gain that accepted ``c`` (route "angle": the angle residual's mean square; "structure":
+    the closed loop's persistent z) that its own effect carries (:func:`own_share`). Without the effect the
+    statistic is the better of two models: the full fit with the effect switched off (:func:`switched_off`:
+    the composition and the refitted nominal parameters kept) and ``refit`` (:func:`_refit_without`: the
+    nominal parameters free to take back what they had leaned on the effect for)."""
+    spec_off, x_off = switched_off(full.spec, full.x, c)
+    models = [cur, full, F.FitResult(spec_off, x_off, full.rss, full.m, None, 0)] + ([refit] if refit else [])
+    stat = persistent if route == "structure" else (lambda fr: _angle_ms(fr, ctx.data))
+    v = [stat(m) for m in models]
+    share = own_share(v[0], v[1], min(v[2:]))
+    name = "persistent z" if route == "structure" else "angle mean square (noise units)"
+    ctx.log(f"  {c}: footprint: {name} {v[0]:.3f} -> {v[1]:.3f}; without its effect {v[2]:.3f} (switched off)"
+            + (f", {v[3]:.3f} (the current model refitted)" if refit else "") + f": its own share {share:.0%}")
+    return share
+
+
+def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolves=None, structure_only=(),
+            persistent=None):
     """Step 3: the best candidate whose full fit simulates and lowers the angle RMS by RMS_MIN_GAIN, or, with
     ``resolves`` (FitResult -> bool: a closed loop's persistent structure accounted for), passes ``resolves``.
     A candidate of ``structure_only`` (tried for the structure only: it did not pass the held-out gain) is
     accepted by ``resolves`` alone: the angle's RMS gain without the held-out gain is no evidence (measured: a
     sensor offset with a held-out error 19x the current model's lowered the angle's RMS by more than 10 % on a
-    closed loop, docs/diagnosis.md round 12). Returns (its id, held-out gain, full fit), or None."""
+    closed loop, docs/diagnosis.md round 12).
+    Footprint guard: the gain that accepts a candidate must be its effect's. With the effect switched off in
+    its full fit (:func:`switched_off`: the nominal parameters as refitted, the composition kept) at least
+    FOOTPRINT_SHARE of the gain must come back (:func:`own_share`, on the statistic of the rule that accepted
+    it); a candidate whose own removal costs nothing explained nothing (measured: a clean closed loop, 3B seed
+    17, "explained" by a coil heating at its bounds, C_th 2000 J/K and R_th 0.2 K/W, a few hundredths of a
+    kelvin in 6 s; docs/diagnosis.md round 15). Without the effect means the better of the full fit with the
+    effect switched off and the current model refitted from the full fit's values (_footprint: a fit that leans
+    its nominal parameters on a sensor offset gives the gain back when the offset alone is switched off, and not
+    when the nominal parameters may move back). ``persistent``: the z of a model (needed with ``resolves``).
+    Returns (its id, held-out gain, full fit); (None, None, the current model refitted) when a candidate was
+    refused by the footprint guard and that refit fits better than the current model (the round's candidates
+    were all judged against a model short of its own optimum: the selection starts the round again from the
+    refit); or None."""
     active = tuple(c.id for c in cur.spec.candidates)
     for g, d, c, fr in gains:
         r = ctx.runner.map([("fit", ctx.base_dict, ctx.nominal, active + (c,), fr.x, FULL_NFEV, len(cur.x))])[0]
@@ -387,17 +471,31 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolv
             continue
         full = F.FitResult(fr.spec, *r)
         ratio = angle_rms_ratio(full, cur, ctx.data)
-        if ratio <= 1.0 - RMS_MIN_GAIN and c not in structure_only:
-            return c, g, full
-        if c not in structure_only and _excess_down(full, cur, ctx.data):
-            ctx.log(f"  {c}: angle RMS x{ratio:.2f}, near the noise floor; its excess over the noise halved: accepted")
-            return c, g, full
-        if resolves is not None and resolves(full):
-            ctx.log(f"  {c}: angle RMS x{ratio:.2f}, but it accounts for the persistent structure of the closed "
-                    "loop's residuals (current, steady motion): accepted")
-            return c, g, full
-        ctx.log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f})"
-                + (" and the persistent structure stays" if resolves is not None else "") + ": not accepted")
+
+        def routes():          # the rules that accept it, each checked when the one before did not
+            if c not in structure_only and ratio <= 1.0 - RMS_MIN_GAIN:
+                yield "angle", f"angle RMS x{ratio:.2f}"
+            elif c not in structure_only and _excess_down(full, cur, ctx.data):
+                yield "angle", f"angle RMS x{ratio:.2f}, near the noise floor; its excess over the noise halved"
+            if resolves is not None and resolves(full):
+                yield "structure", (f"angle RMS x{ratio:.2f}, but it accounts for the persistent structure of the "
+                                    "closed loop's residuals (current, steady motion)")
+        refused, refit = [], None
+        for route, why in routes():
+            if not refused:
+                refit = _refit_without(ctx, cur, full)
+            if _footprint(ctx, c, cur, full, route, persistent, refit) >= FOOTPRINT_SHARE:
+                ctx.log(f"  {c}: {why}: accepted")
+                return c, g, full
+            refused.append(why)
+        if refused:
+            ctx.log(f"  {c}: {'; '.join(refused)}; but its own effect carries less than {FOOTPRINT_SHARE:.0%} of "
+                    "that gain (the refitted nominal parameters or the composition do): not accepted")
+            if refit is not None and refit.rss < cur.rss:
+                return None, None, refit    # every candidate was judged against a model short of its optimum
+        else:
+            ctx.log(f"  {c}: angle RMS x{ratio:.2f} over the recordings (needs <= {1.0 - RMS_MIN_GAIN:.2f})"
+                    + (" and the persistent structure stays" if resolves is not None else "") + ": not accepted")
         if resolves is None and not (evidence is not None and c == evidence["winner"]):
             return None                     # (the physics' choice falling short lets the next one try)
     return None
@@ -466,10 +564,15 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
             break
         structure_only = {c for g, _, c, _ in passing if g < CV_MIN_GAIN and not (evidence and c == evidence["winner"])}
         gains = passing
-        acc = _accept(ctx, cur, gains, evidence, rnd, resolves, structure_only)
+        acc = _accept(ctx, cur, gains, evidence, rnd, resolves, structure_only, persistent)
         if acc is None:
             break
         c, g, full = acc
+        if c is None:       # the gain was the current model's own, refitted: take the refit, claim nothing
+            log(f"  the current model refitted from the refused fit's values: RSS {cur.rss:.1f} -> {full.rss:.1f}; "
+                "the selection goes on from it")
+            cur = full
+            continue
         if evidence is not None and evidence["winner"] != c:
             evidence = dict(evidence, note=f"the formula of {evidence['winner']} did not pass the fit on all the "
                                            f"data; {c} taken")

@@ -379,6 +379,12 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
             # continuous replay, so its polish says nothing about where the effect's fit should start
             final, steps = select(nominal0, fit_data, runner, [c for c in opts.candidates if CANDIDATES[c].fit],
                                   significant, opts.max_effects, bar, log, skipped, persistent=persistent)
+            if not steps and final is not nominal0:
+                # no effect, but the nominal model refitted (explain._accept's footprint guard: the gain of a
+                # refused candidate was the nominal parameters'): that refit is the calibrated nominal model
+                nominal0, nominal = final, polish(final, data)
+                res0 = angle_residuals_deg(simulate(*spec0.build(nominal.x), data), data)
+                log(f"  recalibrated nominal model: RMS {_rms(res0):.4f} deg")
             lap("select")
             from .refine import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
             final, steps, shaped = refine(nominal0, final, steps, fit_data, significant, log=log,
