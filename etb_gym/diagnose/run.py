@@ -200,7 +200,7 @@ def polish(fr: F.FitResult, data: Data, shaped=None, final: bool = False, note: 
     if not data.continuity:
         return fr
     if all(rd.residual == "observer" for rd in data.recs):
-        return polish_replay(fr, data, note) if final else fr
+        return polish_replay(fr, data, note, _shaping(fr, shaped)) if final else fr
     ref = _shaping(fr, shaped)
     if ref is not None:
         return polish_shaped(fr, ref, data)
@@ -217,7 +217,7 @@ def polish(fr: F.FitResult, data: Data, shaped=None, final: bool = False, note: 
 REPLAY_NFEV = 30      # evaluations of a closed-loop final model's refit on the replay (polish_replay), per fit
 
 
-def polish_replay(fr: F.FitResult, data: Data, note: dict | None = None) -> F.FitResult:
+def polish_replay(fr: F.FitResult, data: Data, note: dict | None = None, ref=None) -> F.FitResult:
     """A closed-loop final model (``data``: every recording scored by the observer) refitted on the replay of the
     recorded voltage (model.replay_view: open loop, going on from the model's own state), kept only where it
     generalizes: fitted on the first half of every recording's replay, the second half's cost must fall by more
@@ -229,22 +229,30 @@ def polish_replay(fr: F.FitResult, data: Data, note: dict | None = None) -> F.Fi
     stribeck_friction@2 random seed 3's from 2.07x to 2.58x, the observer's cost unchanged in both (+0.6 %,
     +0.03 %), so it cannot choose. The halves are contiguous: with alternating 0.5 s blocks (fit.fold_masks)
     the held-out blocks of stribeck_friction@2 gained 8 % and 22 % (the twin worse), with the halves -278 % and
-    -34 %; sensor_delay@2 gained 42-46 % either way (round 15b). Models with more than POLISH_MAX_PARAMS parameters (tables) keep their fit.
+    -34 %; sensor_delay@2 gained 42-46 % either way (round 15b). A model with a table (``ref``: its kept
+    shapes.Refinement) is refitted with the table's penalty (:func:`polish_shaped`); other models with more than
+    POLISH_MAX_PARAMS parameters keep their fit.
     ``note`` (a dict, if given) gets the guard's figures (report.json ``replay_refit``). On failure: ``fr``."""
-    if not 0 < len(fr.x) <= POLISH_MAX_PARAMS:
+    if ref is None and not 0 < len(fr.x) <= POLISH_MAX_PARAMS:
         return fr
     rv = replay_view(data)
+
+    def refit(masks=None):
+        if ref is not None:
+            return polish_shaped(fr, ref, rv, masks)
+        return F.fit(fr.spec, rv, fr.x, masks=masks, max_nfev=REPLAY_NFEV)
+
     info = {"folds": [], "kept": False}
     try:
         A = [rd.rec.t_s - rd.rec.t_s[0] < 0.5 * (rd.rec.t_s[-1] - rd.rec.t_s[0]) for rd in rv.recs]
         B = [~a for a in A]
         for fit_m, test_m in ((A, B), (B, A)):
-            part = F.fit(fr.spec, rv, fr.x, masks=fit_m, max_nfev=REPLAY_NFEV)
+            part = refit(fit_m)
             r0, r1 = (F.evaluate(fr.spec, rv, x, masks=test_m) for x in (fr.x, part.x))
             info["folds"].append({"held_cost_before": float(r0 @ r0), "held_cost_after": float(r1 @ r1),
                                   "margin": math.sqrt(2 * r0.size)})
         if all(f["held_cost_before"] - f["held_cost_after"] > f["margin"] for f in info["folds"]):
-            out = F.fit(fr.spec, rv, fr.x, max_nfev=REPLAY_NFEV)
+            out = refit()
             o0, o1 = (F.evaluate(fr.spec, data, x) for x in (fr.x, out.x))
             info["observer_cost"] = [float(o0 @ o0), float(o1 @ o1), math.sqrt(2 * o0.size)]
             info["kept"] = bool(o1 @ o1 - o0 @ o0 <= math.sqrt(2 * o0.size))
@@ -255,7 +263,8 @@ def polish_replay(fr: F.FitResult, data: Data, note: dict | None = None) -> F.Fi
     if not info["kept"]:
         return fr
     # the Jacobian (standard errors, block scores) stays the observer fit's, taken near x
-    return dataclasses.replace(fr, x=out.x, rss=info["observer_cost"][1], nfev=fr.nfev + int(out.nfev))
+    nfev = int(out.nfev) if ref is not None else fr.nfev + int(out.nfev)     # polish_shaped counts fr's
+    return dataclasses.replace(fr, x=out.x, rss=info["observer_cost"][1], nfev=nfev)
 
 
 SHAPED_NFEV = 30      # evaluations of the shaped model's polish (Jacobians by finite differences not counted)
@@ -269,7 +278,7 @@ def _shaping(fr: F.FitResult, shaped):
     return refs[-1]
 
 
-def polish_shaped(fr: F.FitResult, ref, data: Data) -> F.FitResult:
+def polish_shaped(fr: F.FitResult, ref, data: Data, masks=None) -> F.FitResult:
     """A model with a table (``ref``: shapes.Refinement) refitted on the continuous replay: the table's knots
     and the nominal parameters with the table's own penalty (roughness at the weight its cross-validation chose,
     the anchored and held knots, the nameplate prior) as extra residual rows, and the family's formula
@@ -280,7 +289,8 @@ def polish_shaped(fr: F.FitResult, ref, data: Data) -> F.FitResult:
     the table; the twin, replayed on another excitation, goes on from its own state as on the continuous replay.
     Measured (docs/diagnosis.md, round 15): the twins of open-loop recordings with an electrical table predicted
     their held-out recording at 1.54x and 1.61x the noise before this fit. Kept when the penalized objective falls;
-    on failure: ``fr``."""
+    on failure: ``fr``. ``masks``: fitted on those samples only (polish_replay's folds; the returned ``rss`` is
+    on all of ``data``)."""
     pb, lams = ref.problem, list(ref.lams)
     S, c = pb.penalty_rows(lams)
     free = [int(k) for k in pb.free]
@@ -289,7 +299,7 @@ def polish_shaped(fr: F.FitResult, ref, data: Data) -> F.FitResult:
     free = np.array(sorted(free))
     S_all = np.zeros((S.shape[0], free.size))
     S_all[:, np.searchsorted(free, pb.free)] = S
-    fun = F.make_fun(fr.spec, data)
+    fun = F.make_fun(fr.spec, data, masks)
     lo, hi = fr.spec.bounds()
 
     def full(theta):
