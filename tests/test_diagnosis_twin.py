@@ -165,3 +165,37 @@ def test_a_model_with_a_table_is_polished_on_the_continuous_replay_with_its_pena
     owners = [o for o, _ in ref.fit.spec.params]
     formula_idx = [k for k, o in enumerate(owners) if o == "airflow_torque"]
     assert np.array_equal(out.x[formula_idx], ref.fit.x[formula_idx])
+
+
+def test_a_closed_loop_final_model_is_refitted_on_the_replay_only_where_held_out_folds_gain():
+    """run.polish_replay (round 15b): on a closed-loop recording (observer residual) a final model whose torque
+    constant is off is refitted on the replay of the recorded voltage, since fitted on either time fold the other
+    fold's replay cost falls by more than its noise; the refit's own optimum is not refitted again (the folds
+    gain nothing there), and without ``final`` (the nominal model) nothing is refitted."""
+    import dataclasses
+
+    from etb_gym.diagnose import fit as F
+    from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.model import Spec, replay_view
+    from etb_gym.diagnose.run import polish
+    truth = make_plant("3B", {"friction.coulomb_Nm": 0.19, "friction.static_Nm": 0.209, "spring.preload_Nm": 0.16},
+                       substeps=80).replace(effects=[fx.TorqueConstantError(delta_Nm_per_A=-0.012)])
+    data = prepare([make_recording(truth, np.random.default_rng(33), duration_s=4.0, closed=True, name="c.csv",
+                                   noise_deg=0.01)], 12.0, residual="auto")
+    assert data.recs[0].residual == "observer"
+    spec = Spec(make_plant("3B", substeps=10)).with_candidate(CANDIDATES["torque_constant_error"])
+    fr = F.fit(spec, data, max_nfev=30)
+    k = [o for o, _ in spec.params].index("torque_constant_error")
+    x_off = fr.x.copy()
+    x_off[k] = spec.x0()[k]                          # the torque constant at its nameplate value
+    off = dataclasses.replace(fr, x=x_off, rss=float(np.sum(F.evaluate(spec, data, x_off) ** 2)))
+    assert polish(off, data) is off
+    note = {}
+    out = polish(off, data, final=True, note=note)
+    assert note["kept"] and out is not off
+    assert all(f["held_cost_before"] - f["held_cost_after"] > f["margin"] for f in note["folds"])
+    replay = lambda x: float(np.sum(F.evaluate(spec, replay_view(data), x) ** 2))   # noqa: E731
+    assert replay(out.x) < replay(off.x)
+    note2 = {}
+    assert polish(out, data, final=True, note=note2) is out
+    assert not note2["kept"]
