@@ -36,6 +36,7 @@ from ..components.effects_maps import SensorMapParams
 from ..components.sensor import MAX_FILTER_TAPS, ReadingFilterParams
 from . import fit as F
 from .model import Data, SimulationFailed, replay_view, restart_view, simulate
+from .shapes import hat_weights
 
 SENSING_MAPS = {"sensor_offset_gain": "curve", "sensor_delay": "filter"}
 CURVE_KNOTS = 16              # knots of the reading curve over the visited angles
@@ -146,9 +147,7 @@ def _folds(t: np.ndarray) -> np.ndarray:
 def hat_basis(x: np.ndarray, knots: np.ndarray) -> np.ndarray:
     """Piecewise-linear interpolation as a design matrix: row k holds the weights of ``x[k]`` on the knots
     (held constant beyond the first and last knot, as SensorMap)."""
-    xc = np.clip(x, knots[0], knots[-1])
-    j = np.clip(np.searchsorted(knots, xc, side="right") - 1, 0, knots.size - 2)
-    f = (xc - knots[j]) / (knots[j + 1] - knots[j])
+    j, f = hat_weights(x, knots)
     B = np.zeros((x.size, knots.size))
     rows = np.arange(x.size)
     B[rows, j] = 1.0 - f

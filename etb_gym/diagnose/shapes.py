@@ -205,6 +205,15 @@ def current_grid(data: Data, base, n: int = 9) -> np.ndarray:
     return g
 
 
+def hat_weights(x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A table's piecewise-linear interpolation (effects_maps' lookup) as weights: per sample of ``x`` the knot
+    ``k`` to its left and the fraction ``f`` towards knot ``k + 1`` (weights 1 - f and f; held at the end knots
+    beyond the grid). ``grid``: increasing, at least 2 knots."""
+    xc = np.clip(x, grid[0], grid[-1])
+    k = np.clip(np.searchsorted(grid, xc, side="right") - 1, 0, grid.size - 2)
+    return k, (xc - grid[k]) / (grid[k + 1] - grid[k])
+
+
 def _hat_time(x: np.ndarray, grid: np.ndarray, dt: float) -> np.ndarray:
     """Per knot: the time [s] the samples ``x`` spent near it, each sample split between its two knots as the
     table's interpolation weights it (samples beyond an end count for the end knot)."""
@@ -212,9 +221,7 @@ def _hat_time(x: np.ndarray, grid: np.ndarray, dt: float) -> np.ndarray:
     out = np.zeros(g.size)
     if x.size == 0 or g.size < 2:
         return out + x.size * dt
-    xc = np.clip(x, g[0], g[-1])
-    k = np.clip(np.searchsorted(g, xc, side="right") - 1, 0, g.size - 2)
-    f = (xc - g[k]) / (g[k + 1] - g[k])
+    k, f = hat_weights(x, g)
     np.add.at(out, k, (1.0 - f) * dt)
     np.add.at(out, k + 1, f * dt)
     return out
