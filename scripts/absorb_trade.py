@@ -44,6 +44,9 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, default=6.0)
     ap.add_argument("--row", help="append the result (JSON) to this file")
     ap.add_argument("--verbose", action="store_true", help="print the diagnosis's log")
+    ap.add_argument("--calibration-only", action="store_true",
+                    help="stop after the calibration (no candidate, no shape refinement): the verdict is then the "
+                         "calibrated nominal model's, `match` or not; what the levels traded is the same")
     ap.add_argument("--prior-width", type=float, default=0.15,
                     help="the calibration refitted with a prior of this relative width around the file's values")
     a = ap.parse_args(argv)
@@ -67,11 +70,17 @@ def main(argv=None):
         return seen["res"]
 
     proof.truth_plant, proof.diagnose, proof.score_heldout = keep_truth, keep_result, keep_heldout
-    opts = proof._parser().parse_args(["--duration", str(a.duration), "--jobs", "1", "--nameplate", a.nameplate])
+    args = ["--duration", str(a.duration), "--jobs", "1", "--nameplate", a.nameplate]
+    if a.calibration_only:
+        import etb_gym.diagnose.refine as refine
+        refine.refine = lambda nominal, final, steps, *r, **kw: (final, steps, None)
+        args += ["--max-effects", "0"]
+    opts = proof._parser().parse_args(args)
     with tempfile.TemporaryDirectory() as work:
         row, _ = proof.run_case(a.case, a.seed, opts, work)
     res, fpd, tpd = seen["res"], seen["file"].params_dict(), seen["truth"].params_dict()
     out = {"case": a.case, "seed": a.seed, "nameplate": a.nameplate, "verdict": row["verdict"],
+           "calibration_only": a.calibration_only,
            "effects": row["effects"], "effect_size": row.get("effect_size"),
            "twin": row["heldout_rms_after"] / row["true_noise"], "cpu_s": row.get("cpu_s"),
            "rms_over_floor": row["rms_before"] / row["noise_floor"], "closed": row["closed"], "params": {}}
