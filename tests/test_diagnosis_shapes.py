@@ -383,31 +383,3 @@ def test_a_friction_level_error_moves_a_held_rest_angle_by_the_error_over_the_sp
     a, b = p.simulate(duty=duty).angle_deg, q.simulate(duty=duty).angle_deg
     assert np.ptp(a[-100:]) < 1e-3 and np.ptp(b[-100:]) < 1e-3            # held
     assert a[-1] - b[-1] == pytest.approx(math.degrees(d / pd["spring.rate_Nm_per_rad"]), rel=0.1)
-
-
-def test_the_rest_levels_are_scanned_on_the_replay_and_kept_only_where_both_halves_gain():
-    """A friction twin whose sliding level is 0.4 mN m high rests 0.06 deg (6x the noise) off wherever the plate
-    is held; the scan on the replay (rest_level.fit_rest_levels) brings the level back, guarded by halves. At the
-    truth's own levels the halves do not gain beyond their noise, so nothing moves."""
-    from etb_gym.diagnose.candidates import candidate
-    from etb_gym.diagnose.rest_level import fit_rest_levels
-    spec = Spec(make_plant("3B")).with_candidate(candidate("stribeck_friction"))
-    x_true = spec.x_from_values({"stribeck_friction.stiction_Nm": 0.02})
-    rec = make_recording(spec.build(x_true)[0], np.random.default_rng(3), duration_s=4.0)
-    data = prepare([rec], 12.0)
-    i = spec.names.index("friction.coulomb_Nm")
-    scale = spec.params[i][1].scale
-    x_off = x_true.copy()
-    x_off[i] += 4e-4 / scale
-
-    def final(x):
-        return F.FitResult(spec, x, float("nan"), 1, None, 0)
-
-    note = {}
-    out = fit_rest_levels(final(x_off), data, note)
-    assert note["kept"], note
-    assert all(f["held_cost_before"] - f["held_cost_after"] > f["margin"] for f in note["folds"])
-    assert abs(out.x[i] - x_true[i]) * scale < 1e-4, note["shift"]
-    note = {}
-    out = fit_rest_levels(final(x_true), data, note)
-    assert not note["kept"] and np.array_equal(out.x, x_true), note

@@ -431,7 +431,7 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
 
         sig0 = significant(nominal)
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
-        shaped, replay_note, rest_note = None, {}, {}
+        shaped, replay_note = None, {}
         if sig0:
             # the search starts from the fit's own optimum: a model that misses an effect drifts on the
             # continuous replay, so its polish says nothing about where the effect's fit should start
@@ -449,9 +449,6 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
                                            persistent=persistent)
             lap("refine")
             final = nominal if final is nominal0 else polish(final, data, shaped, final=True, note=replay_note)
-            if final is not nominal:
-                from .rest_level import fit_rest_levels   # the friction level and preload where a plate rests
-                final = fit_rest_levels(final, data, rest_note)
             lap("polish")
         else:
             final, steps = nominal, []
@@ -459,11 +456,11 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         runner.close()
         bar.close()
     return _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skipped, shaped, out, lap, stages,
-                   cpu0, ref0, replay_note, rest_note)
+                   cpu0, ref0, replay_note)
 
 
 def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skipped, shaped, out, lap, stages,
-            cpu0=None, ref0=None, replay_note=None, rest_note=None):
+            cpu0=None, ref0=None, replay_note=None):
     """The result and its report (written to ``out`` if given); ``elapsed_breakdown_s`` gets the report stage.
     ``ref0``: the nominal model's closed-loop Structures (computed here if None); ``replay_note``: the closed-loop
     final refit's guard (polish_replay), report.json ``replay_refit``."""
@@ -487,8 +484,6 @@ def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skippe
     twin_replay(result, data)
     if replay_note:
         result.report["replay_refit"] = replay_note
-    if rest_note:                                  # the rest levels' scan (rest_level.fit_rest_levels)
-        result.report["rest_levels"] = rest_note
     lap("twin_step")
     result.report["skipped_candidates"] = skipped       # [{id, round, reason}]: could not be simulated
     from .model import LOOP_Z
