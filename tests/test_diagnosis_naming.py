@@ -201,3 +201,41 @@ def test_a_candidate_whose_own_removal_costs_nothing_is_not_accepted(monkeypatch
     fits[()] = ("refit", 1.2, 10, None, 40, 1.0, None)
     assert accept(1.10) is None                           # refused, and the refit is no better than the current
     assert E.own_share(1.0, 1.2, 5.0) == 0.0              # no gain: no share
+
+
+@pytest.mark.parametrize("held_kt, held_sensor, leader, expect", [
+    (1.0, 3.0, "sensor_offset_gain", "torque_constant_error"),   # held readings where the geometry puts them
+    (3.0, 1.0, "torque_constant_error", "sensor_offset_gain"),   # held readings shifted: only a sensor map does
+    (3.0, 1.0, "sensor_offset_gain", None),                      # the leader's side confirmed: it stands
+    (1.0, 1.02, "sensor_offset_gain", None),                     # the fits agree on the held plate: no evidence
+])
+def test_a_plate_held_by_the_geometry_tells_a_torque_constant_from_a_sensor_map(monkeypatch, held_kt, held_sensor,
+                                                                                leader, expect):
+    """discriminate.held_choice: a torque-constant error cannot move a plate at limp-home or against a stop, a
+    sensor map shifts its reading (measured: torque_constant_error@2 3B s13 closed had been named a sensor map,
+    twin 57x the noise). On any nameplate: the stops and limp-home are the model plant's (here a random one).
+    Residuals in noise units over 1000 samples, 200 of them with the model plate held (100 at limp-home, 100
+    beyond the open stop); away from them both fits explain the motion alike."""
+    from types import SimpleNamespace as NS
+
+    from etb_gym.diagnose import discriminate as D
+    from etb_gym.diagnose.synthetic import random_nameplate
+    base = random_nameplate(np.random.default_rng(3))
+    n = 1000
+    k = np.arange(n)
+    phi = np.where(k < 100, base.limp_home_rad, np.where(k < 200, base.angle_max_rad + 1e-4,
+                                                          0.5 * (base.limp_home_rad + base.angle_max_rad)))
+    res = {"torque_constant_error": np.where(k < 200, held_kt, 1.1),
+           "sensor_offset_gain": np.where(k < 200, held_sensor, 1.1)}
+    monkeypatch.setattr(D, "angle_parts", lambda fr, data: (res[fr.x], phi))
+    data = NS(recs=[NS(rec=NS(n=n), noise_deg=0.01)])
+    fits = {c: NS(x=c, tau_int=2.0, spec=NS(base=base)) for c in res}
+    screened = sorted([(-200 if c == leader else -60, c, fits[c]) for c in res])
+    ev = D.held_choice(None, screened, leader, data, 10.0, log=lambda *a: None)
+    assert (ev["winner"] if ev else None) == expect
+    if ev:
+        assert ev["held"]["samples"] == 200 and ev["rivals"] == [leader]
+    # the other side not significant in the screening, or another leader: no comparison
+    weak = [(d if c == leader else -5, c, fr) for d, c, fr in screened]
+    assert D.held_choice(None, weak, leader, data, 10.0, log=lambda *a: None) is None
+    assert D.held_choice(None, screened, "airflow_torque", data, 10.0, log=lambda *a: None) is None

@@ -343,3 +343,65 @@ def region_choice(ref: F.FitResult, screened: list, leader: str, data: Data, pas
 REGION_SIGNATURE = {"end_stop_compliance": "acts only in contact with a stop",
                     "spring_asymmetry": "acts only below limp-home",
                     "backlash": "acts only within the free play around limp-home"}
+
+
+# ------------------------------------------------------------------------------------ a torque constant or a sensor map
+# A torque-constant error scales the drive torque c_M i: it moves where the plate rests at a given current (spring
+# and friction balance c_M i), but not a plate held where the geometry puts it: pressed against a stop, or at rest at
+# limp-home (the spring's preload holds it there while the drive torque stays below preload and friction). A sensor
+# map (gain, offset) maps every reading, the held ones included, and leaves the current-to-torque relation alone.
+# So the readings of a held plate decide between the two, on any nameplate: the stops and limp-home are the plant's.
+GAIN_SIDES = {"torque_constant_error": "torque", "sensor_offset_gain": "sensor"}
+HELD_BAND_NOISE = 3.0    # a model plate within this many noise levels of a stop or of limp-home is held there
+
+
+def held_mask(phi: np.ndarray, base, data: Data) -> np.ndarray:
+    """The samples of the model angle ``phi`` [rad] (stacked over the recordings, as :func:`angle_parts` gives it)
+    at which the model plate is held by the geometry of plant ``base``: at or beyond a stop, or at limp-home
+    (within HELD_BAND_NOISE x the recording's noise)."""
+    band = np.concatenate([np.full(rd.rec.n, math.radians(HELD_BAND_NOISE * rd.noise_deg)) for rd in data.recs])
+    return ((phi <= base.angle_min_rad + band) | (phi >= base.angle_max_rad - band)
+            | (np.abs(phi - base.limp_home_rad) <= band))
+
+
+def held_choice(ref: F.FitResult, screened: list, leader: str, data: Data, bic_min: float, log=print) -> dict | None:
+    """A torque-constant error or a sensor map (GAIN_SIDES)? ``leader`` is one of the two and the other screened
+    significant (dBIC < -``bic_min``). The held samples H are those where the torque-constant fit's model plate is
+    held by the geometry (:func:`held_mask`: a stop, limp-home), which no torque constant can move. On H the two
+    screening fits are compared (angle residuals): z = m_H / tau ln(RSS_H(sensor map) / RSS_H(torque constant)),
+    tau the leader's residual's integrated time. z > ``bic_min``: the held readings sit where the geometry puts
+    them and the sensor map's shift of them is not in the data: the torque constant is named. z < -``bic_min``: the
+    held readings are shifted, as only a sensor map does: the sensor map is named. Otherwise (few held samples,
+    or the two fits agree there: a pure gain error read only near limp-home) the leader stands. Returns the
+    evidence (as :func:`region_choice`'s) or None."""
+    if leader not in GAIN_SIDES:
+        return None
+    other = next(c for c in GAIN_SIDES if c != leader)
+    fits = {c: fr for d, c, fr in screened if d < -bic_min or c == leader}
+    if leader not in fits or other not in fits:
+        return None
+    kt, sm = "torque_constant_error", "sensor_offset_gain"
+    r_kt, phi = angle_parts(fits[kt], data)
+    r_sm, _ = angle_parts(fits[sm], data)
+    if _failed(r_kt) or _failed(r_sm):
+        return None
+    held = held_mask(phi, fits[kt].spec.base, data)
+    m = int(np.count_nonzero(held))
+    if m == 0:
+        return None
+    rss_kt, rss_sm = float(r_kt[held] @ r_kt[held]), float(r_sm[held] @ r_sm[held])
+    z = m / max(fits[leader].tau_int, 1.0) * math.log(max(rss_sm, 1e-300) / max(rss_kt, 1e-300))
+    winner = kt if z > bic_min else sm if z < -bic_min else None
+    log(f"  torque constant or sensor map: {m} samples with the plate held (a stop, limp-home); there RSS "
+        f"{kt} {rss_kt:.0f} against {sm} {rss_sm:.0f} (dBIC-like {z:+.1f}) -> "
+        + (winner if winner is not None else f"{leader} stands"))
+    if winner is None or winner == leader:
+        return None
+    return {"rivals": [leader], "winner": winner,
+            "held": {"samples": m, "rss": {kt: rss_kt, sm: rss_sm}, "dbic": z},
+            "signature": {kt: "scales the drive torque c_M i: moves the plate's rest at a given current, not a plate "
+                              "held at a stop or at limp-home",
+                          sm: "maps every reading, a plate held at a stop or at limp-home included"},
+            "rule": "a torque-constant error cannot move a plate held by the geometry (a stop, limp-home), a sensor "
+                    "map shifts its reading: the readings of the held plate, compared under the two fits "
+                    f"(|dBIC-like| > {bic_min:g}), name the side"}
