@@ -13,8 +13,7 @@ One round:
               (_voltage_side); a friction vs a torque that does not turn with the motion compared by converged
               fits (_direction); close angle-torque rivals by their tables (_tell_apart, both loops); a near
               tie between a family acting at every angle and one with a region of action, by where the gain
-              lives (_region, both loops); a torque-constant error or a sensor map, by the readings of a plate
-              held at a stop or at limp-home (_held, both loops)
+              lives (_region, both loops)
   3. accept   of the candidates whose held-out error beats the current model's by at least CV_MIN_GAIN,
               the first in order of dBIC (after the physics' choice of 2a/2a'/2b/2c; the two-fold held-out gain
               gates, the likelihood on all the data ranks: measured, an angle-dependent friction at dBIC -629
@@ -330,21 +329,6 @@ def _region(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains
     return evidence
 
 
-def _held(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float, rnd: int):
-    """Step 2a'' (both loops): a torque-constant error or a sensor map? The readings of a plate held by the geometry
-    (a stop, limp-home), which a torque constant cannot move and a sensor map shifts, decide
-    (discriminate.held_choice). Returns the evidence and puts its choice first in ``gains``, or None."""
-    ctx.describe(f"round {rnd + 1}: torque constant or sensor map")
-    try:
-        evidence = D.held_choice(ref, screened, gains[0][2], ctx.data, BIC_MIN, ctx.log)
-    except (ValueError, TypeError, FloatingPointError, ZeroDivisionError, OverflowError) as e:
-        ctx.log(f"  torque constant or sensor map: not compared ({e or type(e).__name__})")
-        return None
-    if evidence is not None:
-        _winner_first(ctx, cur, ref, screened, gains, cv0, evidence["winner"])
-    return evidence
-
-
 def _winner_first(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float, w: str):
     """The physics' choice ``w`` first in ``gains`` (cross-validated and added if it was not there)."""
     active = tuple(c.id for c in cur.spec.candidates)
@@ -568,7 +552,6 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         if passing:
             passing.sort(key=lambda s: s[1])     # the held-out gain gates, the likelihood on all data ranks
             evidence = (_voltage_side(ctx, cur, ref, screened, passing, cv0, rnd)
-                        or _held(ctx, cur, ref, screened, passing, cv0, rnd)
                         or _direction(ctx, cur, ref, screened, passing, cv0, rnd)
                         or _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd)
                         or _region(ctx, cur, ref, screened, passing, cv0, rnd))
