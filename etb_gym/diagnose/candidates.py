@@ -147,10 +147,8 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
                P("forward_current_A", 0.05, 0.005, 1.0, 0.05, "A", ref="current_A")), fx.SupplyDrop,
               off=(("series_resistance_ohm", 0.0), ("forward_drop_V", 0.0))),
     Candidate("torque_constant_error", "electrical", fx.TorqueConstantError.description,
-              (P("delta_Nm_per_A", 0.0, -0.08, 0.08, 0.002, "N m/A", ref="torque_constant_Nm_per_A"),), fx.TorqueConstantError,
-              # its small effect is the calibrated torques' (spring, friction) scaled: the profiled scan, at the
-              # scale of a real error (docs/diagnosis.md round 16)
-              profiled=True, off=(("delta_Nm_per_A", 0.0),)),
+              (P("delta_Nm_per_A", 0.0, -0.08, 0.08, 0.01, "N m/A", ref="torque_constant_Nm_per_A"),), fx.TorqueConstantError,
+              off=(("delta_Nm_per_A", 0.0),)),
     Candidate("inductance_saturation", "electrical", fx.InductanceSaturation.description,
               (P("inductance_drop_H", 0.001, -0.02, 0.0045, 0.002, "H", ref="inductance_H",
                  cap="min_inductance_H"),
