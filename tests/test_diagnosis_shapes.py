@@ -193,6 +193,32 @@ def test_a_periodic_torque_becomes_a_fourier_series_that_holds_beyond_the_record
         PeriodicAngleTorque(cos_Nm=(0.0, 0.0), sin_Nm=(0.0, 0.0), cos_Nm_per_A=(0.0, 0.0), sin_Nm_per_A=(0.0,))
 
 
+@pytest.mark.parametrize("start", [7.5, 15.0])
+def test_a_period_locked_on_the_second_harmonic_is_doubled_and_a_true_period_is_not(start):
+    """unmodelled.subharmonic: narrow detent pulses (a strong 2nd harmonic) of period 15 deg over a short swept
+    range (3-36 deg, 2.2 periods, as where a closed loop holds its set points): from the series of the half
+    period (the lock of round 15's detent 3B closed s13, 12.2 against 24.9 deg) the doubled period's series
+    fits far better for its size and its period comes out within 3 %; from the true period, the doubled
+    period's series (twice the harmonics) does not beat it by its size and is not kept."""
+    from etb_gym.diagnose.shapes_eval import Cogging
+    P = 15.0
+    cog = Cogging(amplitude_Nm=0.01, period_rad=math.radians(P), phase_rad=math.radians(2.2), waveform=2.0)
+    truth = make_plant("3B", substeps=40, effects=[cog])
+    rec = make_recording(truth, np.random.default_rng(2), duration_s=1.5, name="pulses.csv")    # 3 .. 36 deg
+    data = prepare([rec], 12.0)
+    spec = Spec(make_plant("3B", substeps=20))
+    nominal = F.FitResult(spec, np.zeros(len(spec.params)), 1.0, 10, None, 0)
+    quiet = lambda *a: None  # noqa: E731
+    s = U.fit_series(nominal, data, start, ("angle",), 3, log=quiet, heldout=False)
+    sub = U.subharmonic(s, nominal, data, log=quiet)
+    if start < P:
+        assert sub is not None and sub.harmonics == 6
+        assert abs(math.degrees(sub.component.params.period_rad) - P) < 0.03 * P
+        assert sub.fit.rss < 0.1 * s.fit.rss
+    else:
+        assert sub is None
+
+
 def test_equation_error_seed_finds_a_current_ripple_without_simulating():
     """unmodelled.equation_error_seed (the start of the generic tables when output error takes no step): from
     the measured angle's smoothed derivatives and the measured current alone, a ripple a i sin(2 pi phi/P + psi)
