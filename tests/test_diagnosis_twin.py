@@ -199,6 +199,10 @@ def test_a_closed_loop_final_model_is_refitted_on_the_replay_only_where_held_out
     note2 = {}
     assert polish(out, data, final=True, note=note2) is out
     assert not note2["kept"]
+    # the verdict's test (round 16): a refit that would leave a significant mismatch where the model left none
+    note3 = {}
+    assert polish(off, data, final=True, note=note3, significant=lambda f: f is not off) is off
+    assert not note3["kept"] and note3["verdict_guard"].startswith("the refit would leave")
 
 
 def test_the_replay_refits_observer_allowance_is_its_noise_or_the_share_the_unseen_halves_gained():
