@@ -199,3 +199,22 @@ def test_a_closed_loop_final_model_is_refitted_on_the_replay_only_where_held_out
     note2 = {}
     assert polish(out, data, final=True, note=note2) is out
     assert not note2["kept"]
+    # the verdict's test (round 16): a refit that would leave a significant mismatch where the model left none
+    note3 = {}
+    assert polish(off, data, final=True, note=note3, significant=lambda f: f is not off) is off
+    assert not note3["kept"] and note3["verdict_guard"].startswith("the refit would leave")
+
+
+def test_the_replay_refits_observer_allowance_is_its_noise_or_the_share_the_unseen_halves_gained():
+    """run.observer_allowance (round 16): a closed-loop replay refit whose unseen halves gained 98 % and 82 % may
+    raise the observer cost by 82 % of it (sensor_delay@2 3B seed 13: +8.6 %, refused by the noise bound alone);
+    halves that gained 0.1 % leave the noise bound sqrt(2 n)."""
+    from etb_gym.diagnose.run import observer_allowance
+    big = [{"held_cost_before": 422060.0, "held_cost_after": 6491.0}, {"held_cost_before": 109019.0,
+                                                                        "held_cost_after": 20000.0}]
+    small = [{"held_cost_before": 1000.0, "held_cost_after": 999.0}, {"held_cost_before": 1000.0,
+                                                                       "held_cost_after": 990.0}]
+    cost, n = 23936.0, 12000
+    assert observer_allowance(big, cost, n) == pytest.approx((1.0 - 20000.0 / 109019.0) * cost)
+    assert observer_allowance(big, cost, n) > 25985.0 - cost > math.sqrt(2 * n)
+    assert observer_allowance(small, cost, n) == pytest.approx(math.sqrt(2 * n))
