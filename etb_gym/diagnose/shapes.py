@@ -26,8 +26,8 @@ the last visited slope (a straight line in the correction, out to the stop). Suc
 hat-weighted time near them, :func:`visit_time_s`) are *anchored*: pulled to 0 with ANCHOR times the weight of a
 roughness row, so the twin falls back to the family's formula (or, for the generic tables, to the calibrated
 nominal model) where the recordings did not go. Beyond the visited range a family's table over angle does not
-return to the formula but holds formula + table at its value at the data's edge angle (the lowest / highest
-recorded angle, :func:`hold_rows`): a formula fitted to part of the stroke is not extrapolated (docs/diagnosis.md, round 14). The same holds for knots the recordings visited without seeing them:
+return to the formula but holds formula + table at its value at the last visited knot (:func:`hold_rows`): a
+formula fitted to part of the stroke is not extrapolated (docs/diagnosis.md, round 14). The same holds for knots the recordings visited without seeing them:
 where the plate sits against a stop or in the spring's limp-home band a torque change does not move it, so a
 knot whose Jacobian column has less than ID_MIN of its table's median energy (first linearization of
 :func:`fit_penalized`) is anchored as well (measured: an airflow plateau's table, free at the 0 and 6 deg knots,
@@ -320,7 +320,7 @@ class Problem:
         """Free parameters: those whose owner is in ``free_ids`` ("nominal" and candidate ids). With ``data``,
         the knots the recordings did not visit (:func:`visit_time_s` < VISIT_MIN_S) are anchored to 0; with
         ``formula`` too (the family's formula component the table corrects), those beyond the visited range
-        hold the family's total (formula + table) at its value at the data's edge angle (:func:`hold_rows`)."""
+        hold the family's total (formula + table) at its value at the last visited knot (:func:`hold_rows`)."""
         free = np.array([k for k, (o, _) in enumerate(spec.params) if o in free_ids], int)
         pos = {int(k): j for j, k in enumerate(free)}
         groups = []
@@ -338,11 +338,8 @@ class Problem:
                     anchor[pos[k]] = 1.0
             H, b = np.zeros((0, free.size)), np.zeros(0)
             prof = formula_profile(formula, t) if formula is not None and vis is not None else None
-            if prof is not None and t.cls.grid_field == "angle_rad":
-                phi = data_angles_rad(data)
-                edges = (float(np.min(phi)), float(np.max(phi)))
-                rows, b, held = hold_rows(t.grid, edges, prof / t.scale,
-                                          formula_profile(formula, t, edges) / t.scale)
+            if prof is not None:
+                rows, b, held = hold_rows(vis, prof / t.scale)
                 H = np.zeros((rows.shape[0], free.size))
                 for j, k in enumerate(idx):
                     H[:, pos[k]] = rows[:, j]
@@ -388,20 +385,19 @@ class Problem:
         return q
 
 
-def formula_profile(comp, term: "MapTerm", angles_rad=None) -> np.ndarray | None:
-    """The family formula ``comp``'s contribution on ``term``'s knots (or at ``angles_rad``), in the table's
-    quantity (a torque, a friction level, a torque-constant change over angle), where the formula is a function
-    of the table's angle alone; None otherwise. Measured through the kernels: the formula's output over the output of the table with
+def formula_profile(comp, term: "MapTerm") -> np.ndarray | None:
+    """The family formula ``comp``'s contribution on ``term``'s knots, in the table's quantity (a torque, a
+    friction level, a torque-constant change over angle), where the formula is a function of the table's angle
+    alone; None otherwise. Measured through the kernels: the formula's output over the output of the table with
     1 at every knot, at rest (omega 0, the current 1 A, a bristle fully deflected: its presliding distance, the
     last parameter of every unit-bristle component)."""
     if comp is None or term.cls.grid_field != "angle_rad" or len(term.value_fields) != 1:
         return None
     unit = term.component(np.ones(term.n_coef))
-    angles = term.grid if angles_rad is None else np.asarray(angles_rad, float)
-    out = np.zeros(angles.size)
+    out = np.zeros(term.grid.size)
     pf, pu = comp.param_vector(), unit.param_vector()
     ds = np.zeros(max(len(comp.state_names), len(unit.state_names), 1))
-    for k, phi in enumerate(angles):
+    for k, phi in enumerate(term.grid):
         f = comp.kernel(0.0, float(phi), 0.0, 1.0, 0.0, np.array([pf[-1]] * ds.size), pf, ds)
         u = unit.kernel(0.0, float(phi), 0.0, 1.0, 0.0, np.array([pu[-1]] * ds.size), pu, ds)
         j = int(np.argmax(np.abs(u[:2])))
@@ -411,34 +407,23 @@ def formula_profile(comp, term: "MapTerm", angles_rad=None) -> np.ndarray | None
     return out
 
 
-def hold_rows(grid: np.ndarray, edges_rad: tuple[float, float], prof: np.ndarray,
-              prof_edges: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rows (over one table's knots), targets and the held mask that hold the family's total, formula ``prof``
-    (on the knots) + table, at its value at the data's edge angle for every knot beyond it (normalized units):
-    a formula fitted on part of the stroke is not extrapolated where the recordings did not go (an
-    angle-dependent friction's quadratic added 0.13 N m at the open stop, 65 % of the friction, where the data
-    ended 12 deg before; docs/diagnosis.md, round 14). ``edges_rad``: the lowest and highest recorded angle;
-    ``prof_edges``: the formula there. Per knot k beyond an edge e: c_k - sum_j h_j(e) c_j = f(e) - f(k), h the
-    table's interpolation weights at e (:func:`hat_weights`). The edge is the samples' angle, not the last knot
-    with any interpolated visit time: that knot's value is the formula's continuation up to a knot spacing
-    beyond the data (a closed loop to 69.3 deg held its total from 73.1 deg: round 16, docs/diagnosis.md)."""
-    g = np.asarray(grid, float)
-    n = g.size
+def hold_rows(visit_s: np.ndarray, prof: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows (over one table's knots), targets and the held mask that hold the family's total, formula ``prof`` +
+    table, at its value at the first / last visited knot for every knot beyond it (normalized units): a formula
+    fitted on part of the stroke is not extrapolated where the recordings did not go (an angle-dependent
+    friction's quadratic added 0.13 N m at the open stop, 65 % of the friction, where the data ended 12 deg
+    before; docs/diagnosis.md, round 14)."""
+    n = prof.size
+    seen = np.flatnonzero(np.asarray(visit_s[:n]) >= VISIT_MIN_S)
     held = np.zeros(n, bool)
     rows, b = [], []
-    for side, (e, fe) in enumerate(zip(edges_rad, prof_edges)):
-        beyond = np.flatnonzero(g < e) if side == 0 else np.flatnonzero(g > e)
-        if beyond.size == 0 or beyond.size == n:
-            continue
-        k0, f = hat_weights(np.array([e]), g)
-        h = np.zeros(n)
-        h[k0[0]] += 1.0 - f[0]
-        h[k0[0] + 1] += f[0]
-        for k in beyond:
-            r = -h.copy()
-            r[k] += 1.0
+    if seen.size:
+        for k in list(range(0, seen[0])) + list(range(seen[-1] + 1, n)):
+            e = seen[0] if k < seen[0] else seen[-1]
+            r = np.zeros(n)
+            r[k], r[e] = 1.0, -1.0
             rows.append(r)
-            b.append(fe - prof[k])
+            b.append(prof[e] - prof[k])
             held[k] = True
     return (np.array(rows).reshape(-1, n), np.array(b), held)
 
