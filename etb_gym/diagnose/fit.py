@@ -265,7 +265,7 @@ def coscale_point(spec: Spec, x0: np.ndarray, index: int, share: float, lo, hi) 
     v = v0 + share * c
     if not (c + v > 0.0 and c + v0 > 0.0):
         return None
-    k = (c + v0) / (c + v)
+    k = (c + v) / (c + v0)
     x = x0.copy()
     x[index] = (v - p.init) / p.scale
     for i, q in enumerate(spec.nominal):
