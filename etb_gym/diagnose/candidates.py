@@ -63,7 +63,7 @@ class Candidate:
     profiled: bool = False
     # its main (first) parameter adds to the nameplate quantity ``ref`` that every calibrated torque is balanced
     # against (a torque-constant error: the drive torque (c_M + delta) i): its scan also walks the calibration's
-    # trade, the nominal torques co-scaled by c_M / (c_M + delta) at each point (fit.coscale_start)
+    # trade, the nominal torques co-scaled by (c_M + delta) / c_M at each point (fit.coscale_start)
     coscaled: bool = False
     # the effect switched off with its composition kept (states, segment restarts, the observer's structure):
     # ((effect field, value or plant key), ...); a plant key (a str, as in ``ties``) takes the plant's own value.

@@ -257,7 +257,7 @@ COSCALE_STEPS = (0.01, 0.025, 0.05, 0.1)   # co-scaled scan: changes of the name
 def coscale_point(spec: Spec, x0: np.ndarray, index: int, share: float, lo, hi) -> np.ndarray | None:
     """``x0`` with parameter ``index`` (a coscaled candidate's main parameter, adding to the nameplate quantity
     c it names as ``ref``) moved by ``share`` x c, and every nominal torque (the calibration's parameters in N m
-    units) scaled by (c + v0) / (c + v): the plate's rests, where the drive torque balances them, stay where the
+    units) scaled by (c + v) / (c + v0) (the calibration fitted them as true torques x c / (c + d)): the plate's rests stay where the
     calibration put them. None where a value leaves its bounds or c + v is not positive."""
     p = spec.params[index][1]
     c = nameplate(spec.base)[p.ref]
