@@ -61,6 +61,10 @@ class Candidate:
     # its small-parameter effect is, to first order, a change of a nominal parameter the calibration has already
     # fitted: its scan re-solves the nominal parameters at each point in open loop too (fit.fit, profile_scan)
     profiled: bool = False
+    # its main (first) parameter adds to the nameplate quantity ``ref`` that every calibrated torque is balanced
+    # against (a torque-constant error: the drive torque (c_M + delta) i): its scan also walks the calibration's
+    # trade, the nominal torques co-scaled by (c_M + delta) / c_M at each point (fit.coscale_start)
+    coscaled: bool = False
     # the effect switched off with its composition kept (states, segment restarts, the observer's structure):
     # ((effect field, value or plant key), ...); a plant key (a str, as in ``ties``) takes the plant's own value.
     # explain.switched_off uses it for the footprint guard (every fitted family has one)
@@ -148,7 +152,9 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
               off=(("series_resistance_ohm", 0.0), ("forward_drop_V", 0.0))),
     Candidate("torque_constant_error", "electrical", fx.TorqueConstantError.description,
               (P("delta_Nm_per_A", 0.0, -0.08, 0.08, 0.01, "N m/A", ref="torque_constant_Nm_per_A"),), fx.TorqueConstantError,
-              off=(("delta_Nm_per_A", 0.0),)),
+              # the calibration balances the drive torque with preload, rate and friction: it absorbs the error's
+              # static part (docs/diagnosis.md round 16), so the fit starts along that trade
+              coscaled=True, off=(("delta_Nm_per_A", 0.0),)),
     Candidate("inductance_saturation", "electrical", fx.InductanceSaturation.description,
               (P("inductance_drop_H", 0.001, -0.02, 0.0045, 0.002, "H", ref="inductance_H",
                  cap="min_inductance_H"),
