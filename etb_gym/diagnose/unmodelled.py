@@ -620,6 +620,44 @@ def periodic_term(shape: dict) -> dict | None:
     return None
 
 
+def residual_period(fit: F.FitResult, data: Data, log=print, every: bool = False) -> dict | None:
+    """The periodic-in-angle structure that the model ``fit`` leaves in the observer's innovation
+    (disturbance.periodic_structure): its description when significant (or, ``every``, whatever was found),
+    else None. A catalogue family whose formula absorbs the mean of a current-proportional ripple (a torque
+    constant, a spring asymmetry, an airflow map) leaves the ripple's periodic part there."""
+    from .disturbance import periodic_structure
+    try:
+        ps = periodic_structure(*fit.spec.build(fit.x), data)
+    except (ValueError, FloatingPointError, ZeroDivisionError, OverflowError, np.linalg.LinAlgError) as e:
+        log(f"  the residual's periodic structure: not computed ({e})")
+        return None
+    if ps is None:
+        return None
+    ids = ", ".join(c.id for c in fit.spec.candidates) or "the nominal model"
+    log(f"  the residual's periodic structure ({ids}): period {ps['period_deg']:.2f} deg, z {ps['z']:.1f} "
+        f"(angle alone {ps['z_angle']:.1f}, per ampere {ps['z_current']:.1f})"
+        + (": significant" if ps["significant"] else ""))
+    return ps if (every or ps["significant"]) else None
+
+
+def removes_period(g: Generic, ps: dict | None, rms_nominal_deg: float, data: Data, log=print) -> bool:
+    """Does the outside description ``g`` (periodic in angle) remove the significant periodic structure ``ps``
+    that the catalogue model left (disturbance.resolved on its z), and lower the nominal model's RMS by
+    RMS_GAIN? Then the catalogue model is not the explanation, whatever its held-out error: the catalogue has no
+    torque periodic in angle, so a catalogue family that fits as well has absorbed only the ripple's mean."""
+    if ps is None or periodic_term(g.shape) is None or not math.isfinite(g.rms_deg):
+        return False
+    if g.rms_deg > (1.0 - RMS_GAIN) * rms_nominal_deg:
+        return False
+    from .disturbance import resolved
+    after = residual_period(g.fit, data, log=log, every=True)
+    z = after["z"] if after is not None else 0.0
+    ok = resolved(ps["z"], z)
+    log(f"  the outside description leaves periodic structure z {z:.1f} of the catalogue model's {ps['z']:.1f}"
+        + (": it removes it" if ok else ""))
+    return ok
+
+
 # ------------------------------------------------------------------------------------ a periodic term as a series
 SERIES_ID = "unmodelled_periodic"
 SERIES_HARMONICS = (3, 6)   # harmonics tried: the first for each part, the second for the winner (kept by MIN_GAIN)
@@ -711,8 +749,12 @@ class Series:
                 wave = "close to a sine" if share < 0.1 else f"harmonics hold {share:.0%} of its energy"
                 words.append(f"{amp:.3g} {'N m' if part == 'angle' else 'N m/A, proportional to the current'} "
                              f"({wave})")
+        out["current_proportional"] = "current" in self.parts
+        out["current_words"] = ("proportional to the current" if self.parts == ("current",) else
+                                "not proportional to the current" if self.parts == ("angle",) else
+                                "with a part of the angle alone and a part proportional to the current")
         out["words"] = (f"a Fourier series in angle, period {out['period_deg']:.2f} deg, {self.harmonics} "
-                        "harmonics: " + "; ".join(words))
+                        f"harmonics, {out['current_words']}: " + "; ".join(words))
         return out
 
 
@@ -830,7 +872,7 @@ def heldout_period_held(s: Series, data: Data) -> float:
         return math.inf
 
 
-def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print) -> Generic:
+def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: dict | None = None) -> Generic:
     """When the generic tables found a torque periodic in angle (:func:`periodic_term`): the same torque as a
     Fourier series in angle, which carries the period to angles the recordings did not visit (a table learned
     over the visited angles falls back to zero elsewhere). The series' parts are chosen by held-out error
@@ -838,10 +880,19 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print) -> Gene
     SERIES_HARMONICS harmonics (more, or both parts, only when they lower it by SERIES_MIN_GAIN). The series
     replaces the tables in the twin (``g.series``, ``g.fit``, ``g.heldout``) when its held-out error is within
     SERIES_TOL of the tables' (fewer coefficients, and a shape that holds beyond the visited angles); the
-    tables' description and their importance stay."""
-    d = periodic_term(g.shape)
-    if d is None or not d.get("period_deg"):
-        return g
+    tables' description and their importance stay. ``hint``: a periodic structure of the residual
+    (:func:`residual_period`) whose period starts the series when the tables show none; the series is then
+    kept only when its held-out error is lower than the tables' by SERIES_MIN_GAIN, and its term becomes the
+    significant one."""
+    if hint is None:
+        d = periodic_term(g.shape)
+        if d is None or not d.get("period_deg"):
+            return g
+        key = "angle" if d is g.shape.get("angle") else "current"
+    else:                      # the period of the residual's structure (residual_period), the tables show none
+        key = "current" if hint["current_proportional"] else "angle"
+        d = {**g.shape.get(key, {}), "periodic": True, "period_deg": float(hint["period_deg"]),
+             "residual_z": float(hint["z"])}
     P = float(d["period_deg"])
     H0, H1 = SERIES_HARMONICS
     P0 = scan_period(nominal, data, P, H0, log)
@@ -879,12 +930,15 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print) -> Gene
             f"(RSS {sub.fit.rss:.4g}) fits better than that of {math.degrees(q.period_rad):.2f} deg "
             f"({ref.fit.rss:.4g}); held-out {sub.heldout:.3g} (period held)")
         best = sub
-    key = "angle" if d is g.shape.get("angle") else "current"
     if best.heldout > (1.0 + SERIES_TOL) * g.heldout:
         log(f"  the Fourier series (held-out {best.heldout:.3g}) does worse than the tables ({g.heldout:.3g}): "
             "the tables stay")
-        if best is not sub:
+        if best is not sub or hint is not None:
             return g
+    if hint is not None and best.heldout >= (1.0 - SERIES_MIN_GAIN) * g.heldout:
+        log(f"  the Fourier series of the residual's period (held-out {best.heldout:.3g}) does not beat the tables "
+            f"({g.heldout:.3g}): no period")
+        return g
         P2 = math.degrees(sub.component.params.period_rad)     # the tables stay, the period is the torque's
         shape = {**g.shape, key: {**d, "period_deg": P2, "period_table_deg": P}}
         shape["summary"] = g.shape["summary"] + f"; its period is {P2:.1f} deg (the tables' {P:.1f} deg is a harmonic)"
@@ -894,6 +948,13 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print) -> Gene
     shape["series"] = desc
     shape[key] = {**d, "period_deg": desc["period_deg"], "period_table_deg": P}   # the series' fitted period
     shape["summary"] = g.shape["summary"] + "; in the twin: " + desc["words"]
+    if hint is not None:
+        term = "unmodelled_current" if key == "current" else "unmodelled_angle"
+        shape["significant_terms"] = [term] + [t for t in g.shape.get("significant_terms", []) if t != term]
+        shape["residual_periodic"] = dict(hint)
+        shape["summary"] = (f"outside the catalogue: a torque periodic in angle, {desc['current_words']}: period "
+                            f"{desc['period_deg']:.1f} deg (found in the residual the catalogue model leaves, started from "
+                            f"{hint['period_deg']:.1f} deg; the tables showed no period); in the twin: {desc['words']}")
     log(f"  the Fourier series replaces the tables in the twin: held-out {best.heldout:.3g} against "
         f"{g.heldout:.3g}; {desc['words']}")
     return dataclasses.replace(g, fit=best.fit, heldout=best.heldout, shape=shape, series=best,
