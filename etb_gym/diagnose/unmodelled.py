@@ -665,6 +665,7 @@ SERIES_PERIOD_SPAN = 0.15   # the fitted period stays within this share of the t
 SERIES_PERIOD_STEP = 0.002  # the period's scale (finite-difference step FD_STEP of it), relative
 SERIES_TOL = 0.25           # the series replaces the tables when its held-out error is at most this much higher
 SERIES_MIN_GAIN = 0.05      # more harmonics, or both parts, are kept only when they lower the held-out error by this
+PERIOD_AGREE = 0.05        # the series' period and a table's periodogram agree within this share (with_series)
 SERIES_PARTS = {"angle": ("cos_Nm", "sin_Nm"), "current": ("cos_Nm_per_A", "sin_Nm_per_A")}
 
 
@@ -930,15 +931,33 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: d
             f"(RSS {sub.fit.rss:.4g}) fits better than that of {math.degrees(q.period_rad):.2f} deg "
             f"({ref.fit.rss:.4g}); held-out {sub.heldout:.3g} (period held)")
         best = sub
-    if best.heldout > (1.0 + SERIES_TOL) * g.heldout:
-        log(f"  the Fourier series (held-out {best.heldout:.3g}) does worse than the tables ({g.heldout:.3g}): "
-            "the tables stay")
-        if best is not sub or hint is not None:
-            return g
     if hint is not None and best.heldout >= (1.0 - SERIES_MIN_GAIN) * g.heldout:
+        Ps = math.degrees(best.component.params.period_rad)
+        dt = g.shape.get(key, {})
+        Pt = dt.get("period_deg")
+        if Pt and dt.get("periodic_r2", 0.0) >= PROBE_R2 and abs(Pt - Ps) <= PERIOD_AGREE * Ps:
+            # the tables stay in the twin, but two estimates of the period agree: the series' fit (started from
+            # the residual's) and the table's own periodogram, which fell short of MIN_CYCLES
+            term = "unmodelled_current" if key == "current" else "unmodelled_angle"
+            shape = {**g.shape, key: {**dt, "periodic": True, "period_deg": Ps, "period_table_deg": Pt},
+                     "residual_periodic": dict(hint),
+                     "significant_terms": [term] + [t for t in g.shape.get("significant_terms", []) if t != term]}
+            shape["summary"] = (g.shape["summary"].replace("a torque over angle that is not periodic",
+                                                           "a torque over angle")
+                                + f"; periodic in angle with period {Ps:.1f} deg (a Fourier "
+                                f"series' fit and the table's periodogram, {Pt:.1f} deg over {dt.get('cycles', 0):.1f} "
+                                "cycles, agree; the tables stay in the twin)")
+            log(f"  the Fourier series (held-out {best.heldout:.3g}) does not beat the tables ({g.heldout:.3g}), "
+                f"but its period {Ps:.2f} deg and the table's {Pt:.2f} deg agree: the period is reported")
+            return dataclasses.replace(g, shape=shape)
         log(f"  the Fourier series of the residual's period (held-out {best.heldout:.3g}) does not beat the tables "
             f"({g.heldout:.3g}): no period")
         return g
+    if best.heldout > (1.0 + SERIES_TOL) * g.heldout:
+        log(f"  the Fourier series (held-out {best.heldout:.3g}) does worse than the tables ({g.heldout:.3g}): "
+            "the tables stay")
+        if best is not sub:
+            return g
         P2 = math.degrees(sub.component.params.period_rad)     # the tables stay, the period is the torque's
         shape = {**g.shape, key: {**d, "period_deg": P2, "period_table_deg": P}}
         shape["summary"] = g.shape["summary"] + f"; its period is {P2:.1f} deg (the tables' {P:.1f} deg is a harmonic)"
