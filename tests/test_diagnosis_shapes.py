@@ -438,3 +438,17 @@ def test_the_residual_shows_a_periodic_torque_and_whether_it_scales_with_the_cur
         assert f["significant"] and abs(f["period_deg"] - P) < 0.05 * P, (name, f)
     assert found["ripple"]["current_proportional"] and not found["detent"]["current_proportional"], found
     assert not found["clean"]["significant"], found["clean"]
+
+
+def test_a_table_period_that_is_a_multiple_of_the_residuals_is_flagged():
+    """unmodelled.harmonic_period: the periodic table's period 2 or 3 times the residual's (within 5 %) gives the
+    residual's period to try; 1.5 times, or a table that is not periodic or not significant, gives None."""
+    def shape(P, periodic=True, sig=("unmodelled_angle",)):
+        return {"angle": {"periodic": periodic, "period_deg": P}, "significant_terms": list(sig)}
+    ps = {"period_deg": 18.7}
+    assert U.harmonic_period(shape(56.1), ps) == 18.7
+    assert U.harmonic_period(shape(37.0), ps) == 18.7
+    assert U.harmonic_period(shape(28.8), ps) is None
+    assert U.harmonic_period(shape(56.1, periodic=False), ps) is None
+    assert U.harmonic_period(shape(56.1, sig=()), ps) is None
+    assert U.harmonic_period(shape(56.1), None) is None

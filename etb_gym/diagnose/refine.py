@@ -234,7 +234,15 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
         if gc.heldout < (1.0 - MIN_GAIN) * g.heldout and U.periodic_term(gc.shape) is not None:
             log(f"  the periodic torque scales with the current: held-out {gc.heldout:.3g} against {g.heldout:.3g}")
             g = gc
-        g = U.with_series(g, nominal, data, log=log)     # the periodic torque as a Fourier series in angle
+        g0, g = g, U.with_series(g, nominal, data, log=log)     # the periodic torque as a Fourier series in angle
+        Q = U.harmonic_period(g0.shape, ps)
+        if Q is not None:           # the tables' period is a multiple of the residual's: the series of each
+            log(f"  the tables' period is a multiple of the residual's ({Q:.2f} deg): its series is tried too")
+            gq = U.with_series(U.with_period(g0, Q), nominal, data, log=log)
+            if gq.series is not None and gq.heldout < g.heldout:
+                log(f"  the series of {Q:.2f} deg predicts the held-out folds better ({gq.heldout:.3g} against "
+                    f"{g.heldout:.3g}): kept")
+                g = gq
     if ps is not None and U.periodic_term(g.shape) is None:
         # the tables show no period, the residual does: a series of the residual's period
         g = U.with_series(g, nominal, data, log=log, hint=ps)

@@ -640,6 +640,30 @@ def residual_period(fit: F.FitResult, data: Data, log=print, every: bool = False
     return ps if (every or ps["significant"]) else None
 
 
+HARMONIC_TOL = 0.05   # a table's period this close to m times the residual's (m = 2, 3): that multiple is tried
+
+
+def harmonic_period(shape: dict, ps: dict | None) -> float | None:
+    """The residual's period (:func:`residual_period`) when the periodic table's period is a multiple of it
+    (2 or 3 times, within HARMONIC_TOL): the tables' periodogram can lock on a multiple of the torque's period
+    (a 56.1 deg period reported for an 18.7 deg detent: the multiple's third harmonic is the torque's
+    fundamental); None otherwise."""
+    d = periodic_term(shape)
+    if d is None or ps is None or not d.get("period_deg") or not ps.get("period_deg"):
+        return None
+    r = float(d["period_deg"]) / float(ps["period_deg"])
+    m = round(r)
+    return float(ps["period_deg"]) if m in (2, 3) and abs(r - m) <= HARMONIC_TOL * m else None
+
+
+def with_period(g: Generic, period_deg: float) -> Generic:
+    """``g`` with its periodic table's period replaced (the tables' own estimate kept as period_table_deg)."""
+    d = periodic_term(g.shape)
+    key = "angle" if d is g.shape.get("angle") else "current"
+    return dataclasses.replace(g, shape={**g.shape, key: {**d, "period_deg": period_deg,
+                                                          "period_table_deg": d["period_deg"]}})
+
+
 def removes_period(g: Generic, ps: dict | None, rms_nominal_deg: float, data: Data, log=print) -> bool:
     """Does the outside description ``g`` (periodic in angle) remove the significant periodic structure ``ps``
     that the catalogue model left (disturbance.resolved on its z), and lower the nominal model's RMS by
@@ -849,6 +873,48 @@ def subharmonic(fund: Series, nominal: F.FitResult, data: Data, log=print) -> Se
     return out
 
 
+REDUCE_SHARE = 0.05     # a series whose harmonics off the multiples of m hold at most this share of its energy ...
+REDUCE_BY = (3, 2)      # ... repeats with P / m (tried in this order)
+
+
+def reduced(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series | None:
+    """The series' own shortest period: when (in every part) the harmonics that are not multiples of m hold at
+    most REDUCE_SHARE of the energy, the function repeats with P / m (harmonic h of P is harmonic h / m of
+    P / m), so that series (H / m harmonics, started from the multiples' coefficients) is fitted with the
+    period free and kept when its held-out error (period held, :func:`heldout_period_held`) is at most
+    SERIES_MIN_GAIN above ``s``'s. A doubling (:func:`subharmonic`) of a period the tables had at 1.5 times
+    the torque's ends on 3 times it (a 56.1 deg series, all its energy in harmonics 3, 6, 9, 12, for an
+    18.7 deg detent). None when no reduction is kept."""
+    c = _coefficients(s)
+    H = s.harmonics
+    P = math.degrees(s.component.params.period_rad)
+    for m in REDUCE_BY:
+        if H % m or P / m < PERIODS_DEG[0]:
+            continue
+        ok = True
+        for part in s.parts:
+            e = np.array([sum(c.get(f"{f}_{h}", 0.0) ** 2 for f in SERIES_PARTS[part]) for h in range(1, H + 1)])
+            off = float(e[[h % m != 0 for h in range(1, H + 1)]].sum())
+            ok &= e.sum() > 0 and off <= REDUCE_SHARE * float(e.sum())
+        if not ok:
+            continue
+        start = {}
+        for key, v in c.items():
+            f, _, h = key.rpartition("_")
+            if int(h) % m == 0:
+                start[f"{f}_{int(h) // m}"] = v
+        r = fit_series(nominal, data, P / m, s.parts, H // m, start, log, heldout=False)
+        if r is None:
+            continue
+        r.heldout = heldout_period_held(r, data)
+        keep = math.isfinite(r.heldout) and r.heldout <= (1.0 + SERIES_MIN_GAIN) * s.heldout
+        log(f"  the series of {P:.2f} deg repeats with 1/{m} of it: {math.degrees(r.component.params.period_rad):.2f} "
+            f"deg, {r.harmonics} harmonics, held-out {r.heldout:.3g} against {s.heldout:.3g}" + (" (kept)" if keep else ""))
+        if keep:
+            return r
+    return None
+
+
 def _coefficients(s: Series) -> dict:
     """The series' fitted coefficients, field_h -> value (the period left out)."""
     return {k.split(".", 1)[1]: v for k, v in s.fit.spec.values(s.fit.x).items()
@@ -931,6 +997,11 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: d
             f"(RSS {sub.fit.rss:.4g}) fits better than that of {math.degrees(q.period_rad):.2f} deg "
             f"({ref.fit.rss:.4g}); held-out {sub.heldout:.3g} (period held)")
         best = sub
+    red = reduced(best, nominal, data, log)
+    if red is not None:            # the series' own shortest period
+        if best is sub:
+            sub = red
+        best = red
     if hint is not None and best.heldout >= (1.0 - SERIES_MIN_GAIN) * g.heldout:
         Ps = math.degrees(best.component.params.period_rad)
         dt = g.shape.get(key, {})
