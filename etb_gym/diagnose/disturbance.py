@@ -284,3 +284,112 @@ def resolved(z_before: float, z_after: float) -> bool:
     rig's shape removes most of a strong structure, not all (measured: a two-node heating with PWM ripple
     losses, which the candidate's copper-only heating lacks, went from z 178 to 74 with coil_heating fitted)."""
     return z_after <= Z_DETECT or z_after <= RESOLVE_SHARE * z_before
+
+
+# ------------------------------------------------------------------ a periodic-in-angle structure in the residual
+PERIODIC_PERIODS_DEG = (6.0, 60.0)   # trial periods (as unmodelled.PERIODS_DEG)
+PERIODIC_CYCLES = 2.5                # ... over at least this many cycles of the visited angles (unmodelled.MIN_CYCLES)
+PERIODIC_HARMONICS = 3
+PERIODIC_TRIALS = 240                # trial periods, log-spaced, then refined around the best
+PERIODIC_SUB = 0.9                   # a P / m that explains this share of the best z is the period
+PERIODIC_Z = 8.0                     # z of the periodic group's extra explained sum of squares that counts (Z_DETECT)
+
+
+def _poly(x: np.ndarray, deg: int = 2) -> np.ndarray:
+    c = (x - float(np.mean(x))) / max(float(np.ptp(x)), 1e-12)
+    return np.stack([c ** k for k in range(1, deg + 1)], axis=1)
+
+
+def periodic_structure(plant, sensor, data, omega_o: float | None = None) -> dict | None:
+    """Is the model (plant, sensor) left with a torque periodic in angle? The observer's one-step angle
+    innovation (observer.py: a scaled, smoothed disturbance-torque estimate) of every recording, open or closed
+    loop, in steady motion (:func:`steady_motion`), in noise units, is regressed on a smooth base (an offset
+    per recording, the time, the speed, the direction, the current, a quadratic in angle and the current times a
+    quadratic in angle: what a catalogue shape, not exactly the rig's, still leaves) and then on the base plus
+    PERIODIC_HARMONICS harmonics of a trial period P in the measured angle, alone ("angle") and times the current
+    ("current"). The statistic is the periodic group's extra explained sum of squares in units of the base fit's
+    left variance and correlation time (fit.integrated_time), as a z-score against chi^2(q):
+    z = (dS - q) / sqrt(2 q), maximized over P within PERIODIC_PERIODS_DEG with PERIODIC_CYCLES cycles over the
+    visited angles. Returns period_deg, z (both parts), z_angle and z_current (each part alone at that period),
+    current_proportional (the part per ampere explains more than the part alone), significant (z >=
+    PERIODIC_Z), or None when too few samples move steadily or the model cannot be simulated."""
+    from .fit import integrated_time
+    from .observer import observe
+    rows = []
+    for k, rd in enumerate(data.recs):
+        if rd.rec.current_A is None:
+            continue
+        pred, _ = observe(plant, sensor, rd, omega_o)
+        if pred is None:
+            return None
+        rec = rd.rec
+        e = (pred[0] - np.asarray(rec.angle_deg, float)) / rd.noise_deg
+        m = steady_motion(rec, rd.noise_deg, friction_speed_rad_s(plant)) & np.isfinite(e)
+        if m.sum() < MIN_SAMPLES // 4:
+            continue
+        w = speed_deg_s(rec)
+        rows.append((k, e[m], np.asarray(rec.angle_deg, float)[m], np.asarray(rec.current_A, float)[m], w[m],
+                     np.asarray(rec.t_s, float)[m]))
+    if not rows or sum(r[1].size for r in rows) < MIN_SAMPLES:
+        return None
+    e = np.concatenate([r[1] for r in rows])
+    a = np.concatenate([r[2] for r in rows])
+    i = np.concatenate([r[3] for r in rows])
+    w = np.concatenate([r[4] for r in rows])
+    t = np.concatenate([r[5] for r in rows])
+    iu = i / max(float(np.std(i)), 1e-12)
+    offs = np.zeros((e.size, len(rows)))
+    n0 = 0
+    for j, r in enumerate(rows):
+        offs[n0:n0 + r[1].size, j] = 1.0
+        n0 += r[1].size
+    pa = _poly(a)
+    B = np.column_stack([offs, _unit(t), _unit(w), np.tanh(w / W_SIGN_DEG_S), iu, pa, iu[:, None] * pa])
+    B = B[:, np.std(B, axis=0) > 0] if len(rows) == 1 else B
+    if len(rows) == 1:
+        B = np.column_stack([np.ones(e.size), B])
+    Q, _ = np.linalg.qr(B)
+    left = e - Q @ (Q.T @ e)
+    q_b = int(np.linalg.matrix_rank(B))
+    s2 = float(left @ left) / max(e.size - q_b, 1)
+    if not s2 > 0:
+        return None
+    tau = integrated_time(left)
+    span = float(np.ptp(a))
+    hi = min(PERIODIC_PERIODS_DEG[1], span / PERIODIC_CYCLES)
+    if hi <= PERIODIC_PERIODS_DEG[0]:
+        return None
+
+    def gain(P: float, parts=("angle", "current")) -> float:
+        cols = []
+        for h in range(1, PERIODIC_HARMONICS + 1):
+            ph = 2 * math.pi * h * a / P
+            c, s = np.cos(ph), np.sin(ph)
+            if "angle" in parts:
+                cols += [c, s]
+            if "current" in parts:
+                cols += [iu * c, iu * s]
+        X = np.column_stack(cols)
+        X = X - Q @ (Q.T @ X)                       # the part the base cannot describe
+        b, *_ = np.linalg.lstsq(X, left, rcond=None)
+        f = X @ b
+        dS = float(f @ f) / (s2 * tau)
+        q = X.shape[1]
+        return (dS - q) / math.sqrt(2.0 * q)
+
+    Ps = np.geomspace(PERIODIC_PERIODS_DEG[0], hi, PERIODIC_TRIALS)
+    z = np.array([gain(P) for P in Ps])
+    k = int(np.argmax(z))
+    fine = np.linspace(Ps[max(k - 1, 0)], Ps[min(k + 1, Ps.size - 1)], 21)
+    zf = [gain(P) for P in fine]
+    P, zb = float(fine[int(np.argmax(zf))]), max(zf)
+    for m in (3, 2):          # a multiple of the period fits as well as the period (its harmonics contain it)
+        if P / m >= PERIODIC_PERIODS_DEG[0]:
+            fine = np.linspace(0.98 * P / m, 1.02 * P / m, 9)
+            zm = [gain(Q) for Q in fine]
+            if max(zm) >= PERIODIC_SUB * zb:
+                P, zb = float(fine[int(np.argmax(zm))]), max(zm)
+                break
+    za, zc = gain(P, ("angle",)), gain(P, ("current",))
+    return {"period_deg": P, "z": float(zb), "z_angle": float(za), "z_current": float(zc),
+            "current_proportional": bool(zc > za), "significant": bool(zb >= PERIODIC_Z), "cycles": span / P}

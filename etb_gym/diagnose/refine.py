@@ -219,7 +219,10 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
         if ref.kept and ref.term.cls is mx.AngleTorqueMap:
             tab = ref.table()
             periodic |= U.periodicity(np.degrees(tab["angle_rad"]), np.asarray(tab["torque_Nm"]))["periodic"]
-    if steps and not periodic and not significant(cur):
+    # the period of what the catalogue model leaves (its significance decides whether the outside description
+    # is tried on an accepted catalogue model; its period starts the series when the tables show none)
+    ps = U.residual_period(cur, data, log, every=True)
+    if steps and not periodic and not significant(cur) and not (ps and ps["significant"]):
         return cur, steps, res
     res.heldout_catalogue = h_cat = _heldout_catalogue(nominal, cur, steps, res.refinements, data)
     resolves = _resolves(persistent, nominal, log)
@@ -231,10 +234,22 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
         if gc.heldout < (1.0 - MIN_GAIN) * g.heldout and U.periodic_term(gc.shape) is not None:
             log(f"  the periodic torque scales with the current: held-out {gc.heldout:.3g} against {g.heldout:.3g}")
             g = gc
-        g = U.with_series(g, nominal, data, log=log)     # the periodic torque as a Fourier series in angle
+        g0, g = g, U.with_series(g, nominal, data, log=log)     # the periodic torque as a Fourier series in angle
+        Q = U.harmonic_period(g0.shape, ps)
+        if Q is not None:           # the tables' period is a multiple of the residual's: the series of each
+            log(f"  the tables' period is a multiple of the residual's ({Q:.2f} deg): its series is tried too")
+            gq = U.with_series(U.with_period(g0, Q), nominal, data, log=log)
+            if gq.series is not None and gq.heldout < g.heldout:
+                log(f"  the series of {Q:.2f} deg predicts the held-out folds better ({gq.heldout:.3g} against "
+                    f"{g.heldout:.3g}): kept")
+                g = gq
+    if ps is not None and U.periodic_term(g.shape) is None:
+        # the tables show no period, the residual does: a series of the residual's period
+        g = U.with_series(g, nominal, data, log=log, hint=ps)
     res.generic = g
     rms_nom = U._rms_deg(nominal.spec, nominal.x, data)
-    if U.compare(g, h_cat, rms_nom, data) or _accounts(persistent, cur, g.fit, log):
+    if U.compare(g, h_cat, rms_nom, data) or _accounts(persistent, cur, g.fit, log) \
+            or U.removes_period(g, ps if ps and ps["significant"] else None, rms_nom, data, log):
         named = {st.id for st in steps}
         dom = g.shape.get("significant_terms", [])
         same = (dom and U.periodic_term(g.shape) is None

@@ -620,6 +620,68 @@ def periodic_term(shape: dict) -> dict | None:
     return None
 
 
+def residual_period(fit: F.FitResult, data: Data, log=print, every: bool = False) -> dict | None:
+    """The periodic-in-angle structure that the model ``fit`` leaves in the observer's innovation
+    (disturbance.periodic_structure): its description when significant (or, ``every``, whatever was found),
+    else None. A catalogue family whose formula absorbs the mean of a current-proportional ripple (a torque
+    constant, a spring asymmetry, an airflow map) leaves the ripple's periodic part there."""
+    from .disturbance import periodic_structure
+    try:
+        ps = periodic_structure(*fit.spec.build(fit.x), data)
+    except (ValueError, FloatingPointError, ZeroDivisionError, OverflowError, np.linalg.LinAlgError) as e:
+        log(f"  the residual's periodic structure: not computed ({e})")
+        return None
+    if ps is None:
+        return None
+    ids = ", ".join(c.id for c in fit.spec.candidates) or "the nominal model"
+    log(f"  the residual's periodic structure ({ids}): period {ps['period_deg']:.2f} deg, z {ps['z']:.1f} "
+        f"(angle alone {ps['z_angle']:.1f}, per ampere {ps['z_current']:.1f})"
+        + (": significant" if ps["significant"] else ""))
+    return ps if (every or ps["significant"]) else None
+
+
+HARMONIC_TOL = 0.05   # a table's period this close to m times the residual's (m = 2, 3): that multiple is tried
+
+
+def harmonic_period(shape: dict, ps: dict | None) -> float | None:
+    """The residual's period (:func:`residual_period`) when the periodic table's period is a multiple of it
+    (2 or 3 times, within HARMONIC_TOL): the tables' periodogram can lock on a multiple of the torque's period
+    (a 56.1 deg period reported for an 18.7 deg detent: the multiple's third harmonic is the torque's
+    fundamental); None otherwise."""
+    d = periodic_term(shape)
+    if d is None or ps is None or not d.get("period_deg") or not ps.get("period_deg"):
+        return None
+    r = float(d["period_deg"]) / float(ps["period_deg"])
+    m = round(r)
+    return float(ps["period_deg"]) if m in (2, 3) and abs(r - m) <= HARMONIC_TOL * m else None
+
+
+def with_period(g: Generic, period_deg: float) -> Generic:
+    """``g`` with its periodic table's period replaced (the tables' own estimate kept as period_table_deg)."""
+    d = periodic_term(g.shape)
+    key = "angle" if d is g.shape.get("angle") else "current"
+    return dataclasses.replace(g, shape={**g.shape, key: {**d, "period_deg": period_deg,
+                                                          "period_table_deg": d["period_deg"]}})
+
+
+def removes_period(g: Generic, ps: dict | None, rms_nominal_deg: float, data: Data, log=print) -> bool:
+    """Does the outside description ``g`` (periodic in angle) remove the significant periodic structure ``ps``
+    that the catalogue model left (disturbance.resolved on its z), and lower the nominal model's RMS by
+    RMS_GAIN? Then the catalogue model is not the explanation, whatever its held-out error: the catalogue has no
+    torque periodic in angle, so a catalogue family that fits as well has absorbed only the ripple's mean."""
+    if ps is None or periodic_term(g.shape) is None or not math.isfinite(g.rms_deg):
+        return False
+    if g.rms_deg > (1.0 - RMS_GAIN) * rms_nominal_deg:
+        return False
+    from .disturbance import resolved
+    after = residual_period(g.fit, data, log=log, every=True)
+    z = after["z"] if after is not None else 0.0
+    ok = resolved(ps["z"], z)
+    log(f"  the outside description leaves periodic structure z {z:.1f} of the catalogue model's {ps['z']:.1f}"
+        + (": it removes it" if ok else ""))
+    return ok
+
+
 # ------------------------------------------------------------------------------------ a periodic term as a series
 SERIES_ID = "unmodelled_periodic"
 SERIES_HARMONICS = (3, 6)   # harmonics tried: the first for each part, the second for the winner (kept by MIN_GAIN)
@@ -627,6 +689,7 @@ SERIES_PERIOD_SPAN = 0.15   # the fitted period stays within this share of the t
 SERIES_PERIOD_STEP = 0.002  # the period's scale (finite-difference step FD_STEP of it), relative
 SERIES_TOL = 0.25           # the series replaces the tables when its held-out error is at most this much higher
 SERIES_MIN_GAIN = 0.05      # more harmonics, or both parts, are kept only when they lower the held-out error by this
+PERIOD_AGREE = 0.05        # the series' period and a table's periodogram agree within this share (with_series)
 SERIES_PARTS = {"angle": ("cos_Nm", "sin_Nm"), "current": ("cos_Nm_per_A", "sin_Nm_per_A")}
 
 
@@ -711,8 +774,12 @@ class Series:
                 wave = "close to a sine" if share < 0.1 else f"harmonics hold {share:.0%} of its energy"
                 words.append(f"{amp:.3g} {'N m' if part == 'angle' else 'N m/A, proportional to the current'} "
                              f"({wave})")
+        out["current_proportional"] = "current" in self.parts
+        out["current_words"] = ("proportional to the current" if self.parts == ("current",) else
+                                "not proportional to the current" if self.parts == ("angle",) else
+                                "with a part of the angle alone and a part proportional to the current")
         out["words"] = (f"a Fourier series in angle, period {out['period_deg']:.2f} deg, {self.harmonics} "
-                        "harmonics: " + "; ".join(words))
+                        f"harmonics, {out['current_words']}: " + "; ".join(words))
         return out
 
 
@@ -806,6 +873,48 @@ def subharmonic(fund: Series, nominal: F.FitResult, data: Data, log=print) -> Se
     return out
 
 
+REDUCE_SHARE = 0.05     # a series whose harmonics off the multiples of m hold at most this share of its energy ...
+REDUCE_BY = (3, 2)      # ... repeats with P / m (tried in this order)
+
+
+def reduced(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series | None:
+    """The series' own shortest period: when (in every part) the harmonics that are not multiples of m hold at
+    most REDUCE_SHARE of the energy, the function repeats with P / m (harmonic h of P is harmonic h / m of
+    P / m), so that series (H / m harmonics, started from the multiples' coefficients) is fitted with the
+    period free and kept when its held-out error (period held, :func:`heldout_period_held`) is at most
+    SERIES_MIN_GAIN above ``s``'s. A doubling (:func:`subharmonic`) of a period the tables had at 1.5 times
+    the torque's ends on 3 times it (a 56.1 deg series, all its energy in harmonics 3, 6, 9, 12, for an
+    18.7 deg detent). None when no reduction is kept."""
+    c = _coefficients(s)
+    H = s.harmonics
+    P = math.degrees(s.component.params.period_rad)
+    for m in REDUCE_BY:
+        if H % m or P / m < PERIODS_DEG[0]:
+            continue
+        ok = True
+        for part in s.parts:
+            e = np.array([sum(c.get(f"{f}_{h}", 0.0) ** 2 for f in SERIES_PARTS[part]) for h in range(1, H + 1)])
+            off = float(e[[h % m != 0 for h in range(1, H + 1)]].sum())
+            ok &= e.sum() > 0 and off <= REDUCE_SHARE * float(e.sum())
+        if not ok:
+            continue
+        start = {}
+        for key, v in c.items():
+            f, _, h = key.rpartition("_")
+            if int(h) % m == 0:
+                start[f"{f}_{int(h) // m}"] = v
+        r = fit_series(nominal, data, P / m, s.parts, H // m, start, log, heldout=False)
+        if r is None:
+            continue
+        r.heldout = heldout_period_held(r, data)
+        keep = math.isfinite(r.heldout) and r.heldout <= (1.0 + SERIES_MIN_GAIN) * s.heldout
+        log(f"  the series of {P:.2f} deg repeats with 1/{m} of it: {math.degrees(r.component.params.period_rad):.2f} "
+            f"deg, {r.harmonics} harmonics, held-out {r.heldout:.3g} against {s.heldout:.3g}" + (" (kept)" if keep else ""))
+        if keep:
+            return r
+    return None
+
+
 def _coefficients(s: Series) -> dict:
     """The series' fitted coefficients, field_h -> value (the period left out)."""
     return {k.split(".", 1)[1]: v for k, v in s.fit.spec.values(s.fit.x).items()
@@ -830,7 +939,7 @@ def heldout_period_held(s: Series, data: Data) -> float:
         return math.inf
 
 
-def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print) -> Generic:
+def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: dict | None = None) -> Generic:
     """When the generic tables found a torque periodic in angle (:func:`periodic_term`): the same torque as a
     Fourier series in angle, which carries the period to angles the recordings did not visit (a table learned
     over the visited angles falls back to zero elsewhere). The series' parts are chosen by held-out error
@@ -838,10 +947,19 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print) -> Gene
     SERIES_HARMONICS harmonics (more, or both parts, only when they lower it by SERIES_MIN_GAIN). The series
     replaces the tables in the twin (``g.series``, ``g.fit``, ``g.heldout``) when its held-out error is within
     SERIES_TOL of the tables' (fewer coefficients, and a shape that holds beyond the visited angles); the
-    tables' description and their importance stay."""
-    d = periodic_term(g.shape)
-    if d is None or not d.get("period_deg"):
-        return g
+    tables' description and their importance stay. ``hint``: a periodic structure of the residual
+    (:func:`residual_period`) whose period starts the series when the tables show none; the series is then
+    kept only when its held-out error is lower than the tables' by SERIES_MIN_GAIN, and its term becomes the
+    significant one."""
+    if hint is None:
+        d = periodic_term(g.shape)
+        if d is None or not d.get("period_deg"):
+            return g
+        key = "angle" if d is g.shape.get("angle") else "current"
+    else:                      # the period of the residual's structure (residual_period), the tables show none
+        key = "current" if hint["current_proportional"] else "angle"
+        d = {**g.shape.get(key, {}), "periodic": True, "period_deg": float(hint["period_deg"]),
+             "residual_z": float(hint["z"])}
     P = float(d["period_deg"])
     H0, H1 = SERIES_HARMONICS
     P0 = scan_period(nominal, data, P, H0, log)
@@ -879,7 +997,33 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print) -> Gene
             f"(RSS {sub.fit.rss:.4g}) fits better than that of {math.degrees(q.period_rad):.2f} deg "
             f"({ref.fit.rss:.4g}); held-out {sub.heldout:.3g} (period held)")
         best = sub
-    key = "angle" if d is g.shape.get("angle") else "current"
+    red = reduced(best, nominal, data, log)
+    if red is not None:            # the series' own shortest period
+        if best is sub:
+            sub = red
+        best = red
+    if hint is not None and best.heldout >= (1.0 - SERIES_MIN_GAIN) * g.heldout:
+        Ps = math.degrees(best.component.params.period_rad)
+        dt = g.shape.get(key, {})
+        Pt = dt.get("period_deg")
+        if Pt and dt.get("periodic_r2", 0.0) >= PROBE_R2 and abs(Pt - Ps) <= PERIOD_AGREE * Ps:
+            # the tables stay in the twin, but two estimates of the period agree: the series' fit (started from
+            # the residual's) and the table's own periodogram, which fell short of MIN_CYCLES
+            term = "unmodelled_current" if key == "current" else "unmodelled_angle"
+            shape = {**g.shape, key: {**dt, "periodic": True, "period_deg": Ps, "period_table_deg": Pt},
+                     "residual_periodic": dict(hint),
+                     "significant_terms": [term] + [t for t in g.shape.get("significant_terms", []) if t != term]}
+            shape["summary"] = (g.shape["summary"].replace("a torque over angle that is not periodic",
+                                                           "a torque over angle")
+                                + f"; periodic in angle with period {Ps:.1f} deg (a Fourier "
+                                f"series' fit and the table's periodogram, {Pt:.1f} deg over {dt.get('cycles', 0):.1f} "
+                                "cycles, agree; the tables stay in the twin)")
+            log(f"  the Fourier series (held-out {best.heldout:.3g}) does not beat the tables ({g.heldout:.3g}), "
+                f"but its period {Ps:.2f} deg and the table's {Pt:.2f} deg agree: the period is reported")
+            return dataclasses.replace(g, shape=shape)
+        log(f"  the Fourier series of the residual's period (held-out {best.heldout:.3g}) does not beat the tables "
+            f"({g.heldout:.3g}): no period")
+        return g
     if best.heldout > (1.0 + SERIES_TOL) * g.heldout:
         log(f"  the Fourier series (held-out {best.heldout:.3g}) does worse than the tables ({g.heldout:.3g}): "
             "the tables stay")
@@ -894,6 +1038,13 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print) -> Gene
     shape["series"] = desc
     shape[key] = {**d, "period_deg": desc["period_deg"], "period_table_deg": P}   # the series' fitted period
     shape["summary"] = g.shape["summary"] + "; in the twin: " + desc["words"]
+    if hint is not None:
+        term = "unmodelled_current" if key == "current" else "unmodelled_angle"
+        shape["significant_terms"] = [term] + [t for t in g.shape.get("significant_terms", []) if t != term]
+        shape["residual_periodic"] = dict(hint)
+        shape["summary"] = (f"outside the catalogue: a torque periodic in angle, {desc['current_words']}: period "
+                            f"{desc['period_deg']:.1f} deg (found in the residual the catalogue model leaves, started from "
+                            f"{hint['period_deg']:.1f} deg; the tables showed no period); in the twin: {desc['words']}")
     log(f"  the Fourier series replaces the tables in the twin: held-out {best.heldout:.3g} against "
         f"{g.heldout:.3g}; {desc['words']}")
     return dataclasses.replace(g, fit=best.fit, heldout=best.heldout, shape=shape, series=best,
