@@ -409,33 +409,3 @@ def test_a_friction_level_error_moves_a_held_rest_angle_by_the_error_over_the_sp
     a, b = p.simulate(duty=duty).angle_deg, q.simulate(duty=duty).angle_deg
     assert np.ptp(a[-100:]) < 1e-3 and np.ptp(b[-100:]) < 1e-3            # held
     assert a[-1] - b[-1] == pytest.approx(math.degrees(d / pd["spring.rate_Nm_per_rad"]), rel=0.1)
-
-
-def test_a_stribeck_table_resolves_a_rational_drop_at_creeping_speeds_and_may_tie_its_directions():
-    """stribeck_friction's speed table (issue 15 item 3, round 20): knots from a creeping 1e-3 rad/s up, 3 per
-    decade, so that a friction level that drops like 1/(1 + |omega|/w_s) (a truth shape unlike the candidate's
-    exp(-sqrt)), with w_s anywhere in 0.02-0.2 rad/s, is within 2.5 % of its drop on the table's linear
-    interpolation (the generic 7-knot grid from top/300: 4-5 %, 1.4 mN m on a 0.03 N m stiction). Its tied form
-    (one set of knots for both directions) shares the values, counts the time of both directions, and has
-    half the coefficients and roughness rows."""
-    data = _part_of_the_stroke()                       # +-0.55 rad/s at most, through zero speed twice a cycle
-    base = make_plant("3B")
-    split, tied = S.family_terms("stribeck_friction", base, data)
-    g = split.grid
-    top = g[-2]
-    assert g[0] == 0.0 and g[1] <= S.CREEP_SPEED and g[-1] == pytest.approx(S.OUTER_SPEED * top)
-    assert np.all(np.diff(np.log10(g[1:-1])) <= 1.0 / S.SPEED_KNOTS_PER_DECADE + 1e-9)
-    w = np.linspace(0.0, top, 20001)
-    old = S.speed_grid(data, 7)
-    for ws in (0.02, 0.05, 0.2):
-        def drop(x):
-            return 1.0 / (1.0 + x / ws)
-        err = np.max(np.abs(np.interp(w, g, drop(g)) - drop(w)))
-        assert err < 0.025 and err < 0.5 * np.max(np.abs(np.interp(w, old, drop(old)) - drop(w))), (ws, err)
-    assert tied.tied and tied.id != split.id and tied.n_coef == g.size and split.n_coef == 2 * g.size
-    assert tied.roughness().shape == (g.size - 2, g.size)
-    comp = tied.component(np.linspace(0.01, 0.0, g.size))
-    assert comp.params.opening_Nm == comp.params.closing_Nm
-    vis_t, vis_s = S.visit_time_s(tied, data), S.visit_time_s(split, data)
-    assert vis_t.sum() == pytest.approx(3.0) and vis_s.sum() == pytest.approx(3.0, abs=5e-3)   # omega = 0: neither
-    np.testing.assert_allclose(vis_t, vis_s[:g.size] + vis_s[g.size:], atol=5e-3)

@@ -60,8 +60,6 @@ ANCHOR = 1e3             # ... and is pulled to 0 (the formula alone) with this 
 ID_MIN = 0.01           # a knot whose Jacobian column carries less than this share of its table's median is not
                          # identified either (the plate pinned at a stop or in the limp-home band): anchored too
 OUTER_SPEED = 3.0        # speed tables get a last knot at this multiple of the fastest speed visited (anchored)
-CREEP_SPEED = 1e-3       # a friction family's speed table starts at this creeping speed [rad/s] (or lower) ...
-SPEED_KNOTS_PER_DECADE = 3   # ... with this many knots per decade of |omega| up to the fastest speed visited
 
 
 # ------------------------------------------------------------------------------------ map terms
@@ -77,17 +75,10 @@ class MapTerm:
     scale: float                  # typical knot value (normalization of the coefficients)
     unit: str
     fixed: tuple = ()             # other fields of the component ((name, value), ...)
-    tied: bool = False            # one set of knot values shared by every value field (e.g. a speed table
-                                  # the same while opening and closing)
-
-    @property
-    def n_groups(self) -> int:
-        """Independent sets of knot values (1 when the value fields are tied)."""
-        return 1 if self.tied else len(self.value_fields)
 
     @property
     def n_coef(self) -> int:
-        return self.grid.size * self.n_groups
+        return self.grid.size * len(self.value_fields)
 
     def roughness(self) -> np.ndarray:
         """Second differences of the knot values, per value field, in normalized coefficients."""
@@ -96,7 +87,7 @@ class MapTerm:
             return np.zeros((0, self.n_coef))
         h = np.diff(self.grid)
         rows = []
-        for f in range(self.n_groups):
+        for f in range(len(self.value_fields)):
             for k in range(1, n - 1):
                 r = np.zeros(self.n_coef)
                 # divided second difference on a possibly non-uniform grid, scaled to a uniform grid's
@@ -128,7 +119,6 @@ class _Factory:
         n = t.grid.size
         kw = {t.cls.grid_field: tuple(t.grid)}
         for j, f in enumerate(t.value_fields):
-            j = 0 if t.tied else j
             kw[f] = tuple(coef[j * n:(j + 1) * n])
         kw.update(dict(t.fixed))
         comp = t.cls(t.cls.Params(**kw))
@@ -186,24 +176,9 @@ def local_angle_grid(base, centre_rad: float, below_deg: float, above_deg: float
 def speed_grid(data: Data, n: int = 7) -> np.ndarray:
     """0 and n-1 knots spaced logarithmically up to the fastest speed the recordings reach, and one at
     OUTER_SPEED times that (not visited: anchored, so the table returns to the formula beyond the data)."""
-    top = _top_speed(data)
+    w = np.abs(data_speeds_rad_s(data))
+    top = max(float(np.quantile(w, 0.995)), 0.5)
     return np.concatenate([[0.0], np.geomspace(top / 300.0, top, n - 1), [OUTER_SPEED * top]])
-
-
-def _top_speed(data: Data) -> float:
-    return max(float(np.quantile(np.abs(data_speeds_rad_s(data)), 0.995)), 0.5)
-
-
-def creep_speed_grid(data: Data) -> np.ndarray:
-    """A friction family's speed grid: 0, then SPEED_KNOTS_PER_DECADE knots per decade from a creeping speed
-    (CREEP_SPEED, or top / 300 if lower) up to the fastest speed the recordings reach, and one anchored knot at
-    OUTER_SPEED times that. A friction that drops with speed does most of its dropping between the creeping
-    speeds a held plate or a closed loop visits and a few tenths of a rad/s, where :func:`speed_grid`'s 6
-    knots over 2.5 decades from top / 300 leave one linear segment from 0 to 0.01-0.03 rad/s."""
-    top = _top_speed(data)
-    lo = min(CREEP_SPEED, top / 300.0)
-    n = int(math.ceil(SPEED_KNOTS_PER_DECADE * math.log10(top / lo))) + 1
-    return np.concatenate([[0.0], np.geomspace(lo, top, n), [OUTER_SPEED * top]])
 
 
 def current_grid(data: Data, base, n: int = 9) -> np.ndarray:
@@ -260,20 +235,19 @@ def visit_time_s(term: "MapTerm", data: Data) -> np.ndarray | None:
     field = term.cls.grid_field
     if field == "angle_rad":
         t = _hat_time(data_angles_rad(data), term.grid, float(np.mean(dts)))
-        return np.tile(t, term.n_groups)
+        return np.tile(t, len(term.value_fields))
     if field == "speed_rad_s":
         w = data_speeds_rad_s(data)
         out = []
-        for f in term.value_fields[:term.n_groups]:
-            sel = (np.ones(w.size, bool) if term.tied else
-                   w > 0 if "opening" in f else (w < 0 if "closing" in f else np.ones(w.size, bool)))
+        for f in term.value_fields:
+            sel = w > 0 if "opening" in f else (w < 0 if "closing" in f else np.ones(w.size, bool))
             out.append(_hat_time(np.abs(w[sel]), term.grid, float(np.mean(dts))))
         return np.concatenate(out)
     if field == "current_A":
         cur = [rd.rec.current_A for rd in data.recs]
         if any(c is None for c in cur):
             return None
-        return np.tile(_hat_time(np.concatenate(cur), term.grid, float(np.mean(dts))), term.n_groups)
+        return np.tile(_hat_time(np.concatenate(cur), term.grid, float(np.mean(dts))), len(term.value_fields))
     return None
 
 
@@ -293,8 +267,6 @@ def family_terms(cid: str, base, data: Data) -> list:
     or differs by current direction)."""
     t = family_term(cid, base, data)
     out = [t] if t is not None else []
-    if cid == "stribeck_friction":       # the same level opening and closing (half the knots), or one per direction
-        out.append(dataclasses.replace(t, id=f"{cid}_sym_map", tied=True))
     if cid == "torque_constant_error":
         out.append(MapTerm(f"{cid}_current_map", "electrical", mx.CurrentTorqueConstantMap,
                            current_grid(data, base, 9), ("delta_Nm_per_A",), 0.002, "N m/A"))
@@ -312,7 +284,7 @@ def family_term(cid: str, base, data: Data) -> MapTerm | None:
         return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, PROFILE_KNOTS),
                        ("level_Nm",), 0.005, "N m", (("presliding_rad", 2e-3),))
     if cid == "stribeck_friction":
-        return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, creep_speed_grid(data),
+        return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7),
                        ("opening_Nm", "closing_Nm"), 0.005, "N m", (("presliding_rad", 2e-3),))
     if cid == "supply_drop":
         return MapTerm(f"{cid}_map", "electrical", mx.CurrentVoltageMap, current_grid(data, base, 9),
