@@ -226,7 +226,8 @@ def refit_at_twin_step(fr: F.FitResult, data: Data, n: int, shaped=None, note: d
     (:func:`twin_substeps`) where that is finer than the diagnosis's: :func:`polish` at the twin's step, the fit
     ``fr`` with the same parameters and spec but for the step. Open-loop recordings only (the continuous replay
     is their score; closed loops: polish_replay). Kept when the continuous replay's cost at the twin's step falls;
-    ``note`` gets the costs before and after and the step. On failure: ``fr``.
+    ``note`` (report.json ``twin_step_refit``) gets the step, the costs before and after and the refitted values
+    (``calibrated_parameters`` and the effects keep the diagnosis's fit). On failure: ``fr``.
 
     Why: the diagnosis fits at the coarsest step whose integration error stays below half the noise floor
     (:func:`choose_substeps`), and a few-per-mille bias of the friction and spring levels is how the fit absorbs
@@ -249,7 +250,8 @@ def refit_at_twin_step(fr: F.FitResult, data: Data, n: int, shaped=None, note: d
         return fr
     kept = float(r1 @ r1) < float(r0 @ r0)
     if note is not None:
-        note.update(substeps=n, cost_before=float(r0 @ r0), cost_after=float(r1 @ r1), kept=kept)
+        note.update(substeps=n, cost_before=float(r0 @ r0), cost_after=float(r1 @ r1), kept=kept,
+                    values=fine.spec.values(out.x) if kept else {})
     return out if kept else fr
 
 
