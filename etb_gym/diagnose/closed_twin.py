@@ -10,7 +10,7 @@ and the formula model (the greedy selection's fit) is the final model.
 
 Measured (docs/diagnosis.md, "Closed loops: tables checked on the replay (round 20)"): backlash@2 random seed
 15, an angle table around limp-home of which the loop visited one side only; the table held 0.03-0.09 N m on
-the side the loop never reached (the preload moved +68 % against it), observer cost 4824 with the table and
+the side the loop never reached (the preload moved against it), observer cost 4824 with the table and
 4821 without; the twin replayed its training recording at 1.13x the noise, the formula model at 1.07x, and the
 held-out open-loop recording at 14.1x against 2.5x.
 """
