@@ -93,6 +93,9 @@ def test_concealed_effect_in_closed_loop_is_still_named_with_the_observer_residu
     assert rep["verdict"] == "explained", (rep["verdict"], rep["rms_after_deg"], rep["noise_floor_deg"])
     # the twin of an explained closed loop replays its own recording open loop near the noise (run.twin_replay)
     assert rep["twin_replay"]["kc.csv"]["over_noise"] < 2.0, rep["twin_replay"]
+    # ... better than the calibrated nominal model does (else report.md would say so)
+    tr = rep["twin_replay"]["kc.csv"]
+    assert tr["nominal_over_noise"] > tr["over_noise"] and not tr["worse_than_nominal"], tr
 
 
 def test_proof_footprint_of_a_closed_loop_effect_as_the_observer_sees_it():

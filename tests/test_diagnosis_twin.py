@@ -246,3 +246,44 @@ def test_the_replay_refits_observer_allowance_is_its_noise_or_the_share_the_unse
     assert observer_allowance(big, cost, n) == pytest.approx((1.0 - 20000.0 / 109019.0) * cost)
     assert observer_allowance(big, cost, n) > 25985.0 - cost > math.sqrt(2 * n)
     assert observer_allowance(small, cost, n) == pytest.approx(math.sqrt(2 * n))
+
+
+def test_a_closed_loops_learned_table_is_kept_only_where_the_replay_gains(monkeypatch):
+    """closed_twin.check_tables (round 20): on closed-loop recordings a kept table (and a sensor map) is dropped,
+    and the selection's formula model is the final one, when its replay cost is not lower than the formula's by
+    more than sqrt(2 n) (backlash@2 random seed 15: 1.13x vs 1.07x the noise on the replay, held-out 14.1x vs
+    2.5x); kept when it gains more, when the formula model would leave a significant mismatch the table model
+    does not, and on open-loop recordings."""
+    from types import SimpleNamespace as NS
+
+    from etb_gym.diagnose import closed_twin as CT
+
+    n = 5000
+    cost = {"formula": 1.07 ** 2 * n, "table": 1.13 ** 2 * n}
+    monkeypatch.setattr(CT, "replay_view", lambda data: data)
+    monkeypatch.setattr(CT, "_replay_cost", lambda fr, rv: (cost[fr], n))
+
+    def outcome():
+        return NS(refinements=[NS(kept=True, family_id="backlash", term=NS(id="backlash_map"))],
+                  sensor_maps=[NS(kept=True, family_id="backlash", kind="filter")], outside=False, dropped=())
+
+    closed = NS(recs=[NS(residual="observer")])
+    steps = [NS(id="backlash")]
+    note, sh = {}, outcome()
+    assert CT.check_tables("formula", "table", steps, steps, sh, closed, note=note) == "formula"
+    assert note["kept"] is False and note["margin"] == pytest.approx(math.sqrt(2 * n))
+    assert not sh.refinements[0].kept and not sh.sensor_maps[0].kept
+    # the formula model would leave a significant mismatch where the table model leaves none: kept
+    note, sh = {}, outcome()
+    assert CT.check_tables("formula", "table", steps, steps, sh, closed, lambda fr: fr == "formula", note) == "table"
+    assert note["kept"] and "verdict_guard" in note and sh.refinements[0].kept
+    # a table that gains more than the noise on the replay: kept
+    cost["table"] = cost["formula"] - 1.01 * math.sqrt(2 * n)
+    note, sh = {}, outcome()
+    assert CT.check_tables("formula", "table", steps, steps, sh, closed, note=note) == "table" and note["kept"]
+    # an open loop, or a refine that changed the effects: untouched
+    cost["table"] = 2 * cost["formula"]
+    note, sh = {}, outcome()
+    assert CT.check_tables("formula", "table", steps, steps, sh, NS(recs=[NS(residual="replay")]), note=note) == "table"
+    assert CT.check_tables("formula", "table", steps, [NS(id="airflow_torque")], sh, closed, note=note) == "table"
+    assert not note and sh.refinements[0].kept

@@ -346,6 +346,18 @@ def markdown(result, figures) -> str:
                   + ", ".join(f"`{k}` " + (f"{v['rms_deg']:.4f} deg ({v['over_noise']:.1f}x the noise floor)"
                                            if v["rms_deg"] is not None else "the simulation failed")
                               for k, v in r["twin_replay"].items()) + "."]
+        worse = [k for k, v in r["twin_replay"].items() if v.get("worse_than_nominal")]
+        if worse:
+            lines += ["", "**The twin replays " + ", ".join(f"`{k}`" for k in worse) + " worse than the calibrated "
+                      "nominal model** (" + ", ".join(f"{r['twin_replay'][k]['nominal_over_noise']:.1f}x the noise floor"
+                                                      for k in worse) + "): it may predict other excitations worse "
+                      "than the nominal model too."]
+    rt = r.get("replay_tables")
+    if rt and not rt.get("kept", True):
+        lines += ["", f"Learned tables not kept ({', '.join(rt['tables'])}): on the replay of the recorded voltage, "
+                  "which the closed loop's fits did not use, they did not lower the cost by more than its noise "
+                  f"({rt['replay_cost_tables']:.0f} with, {rt['replay_cost_formula']:.0f} without, margin "
+                  f"{rt['margin']:.0f}); the twin has the effects' formulas only."]
     figures = list(figures) + [f for f in r.get("shape_figures", []) if f not in figures]
     lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
     lines += ["", f"The calibrated plant (with the effects that act on the plate) is `{r['calibrated_plant']}`: "

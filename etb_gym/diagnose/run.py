@@ -164,23 +164,36 @@ POLISH_NFEV = 15     # evaluations of the last fit on the scoring residual (cont
 POLISH_MAX_PARAMS = 8     # a model with more (a shape map from refine.py) keeps its fit: the polish would cost too much
 
 
-def twin_replay(result, data: Data) -> None:
+def twin_replay(result, data: Data, nominal: F.FitResult | None = None) -> None:
     """report.json ``twin_replay``: on each closed-loop recording (observer residual) the exported twin's replay
     of the recorded voltage, open loop, as RMS and over the noise floor. The observer residual does not show how
     far the twin drifts on its own; this replay does, and it is about the size of the twin's miss on other
-    excitations (docs/diagnosis.md, "Why twins miss held-out recordings")."""
+    excitations (docs/diagnosis.md, "Why twins miss held-out recordings"). With ``nominal`` (the calibrated
+    nominal model) also its replay (``nominal_over_noise``) and ``worse_than_nominal``: the twin's replay RMS
+    above the nominal's (report.md says so)."""
     obs = [i for i, rd in enumerate(data.recs) if rd.residual == "observer"]
     if not obs:
         return
     rv = replay_view(data)
-    pred = simulate(result.plant, result.sensor, rv)
-    if pred is None:                    # the twin cannot replay the recording: said, not hidden
-        result.report["twin_replay"] = {data.recs[i].rec.name: {"rms_deg": None, "over_noise": None} for i in obs}
-        return
-    res = angle_residuals_deg(pred, rv)
-    result.report["twin_replay"] = {data.recs[i].rec.name: {"rms_deg": _rms([res[i]]),
-                                                            "over_noise": _rms([res[i]]) / data.recs[i].noise_deg}
-                                    for i in obs}
+
+    def rms(plant, sensor):
+        pred = simulate(plant, sensor, rv)
+        if pred is None:                # cannot replay the recording: said, not hidden
+            return {i: None for i in obs}
+        res = angle_residuals_deg(pred, rv)
+        return {i: _rms([res[i]]) for i in obs}
+
+    twin = rms(result.plant, result.sensor)
+    nom = rms(*nominal.spec.build(nominal.x)) if nominal is not None else {}
+    out = {}
+    for i in obs:
+        sig = data.recs[i].noise_deg
+        e = {"rms_deg": twin[i], "over_noise": None if twin[i] is None else twin[i] / sig}
+        if nominal is not None:
+            e["nominal_over_noise"] = None if nom[i] is None else nom[i] / sig
+            e["worse_than_nominal"] = bool(nom[i] is not None and (twin[i] is None or twin[i] > nom[i]))
+        out[data.recs[i].rec.name] = e
+    result.report["twin_replay"] = out
 
 
 def polish(fr: F.FitResult, data: Data, shaped=None, final: bool = False, note: dict | None = None,
@@ -493,7 +506,7 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
 
         sig0 = significant(nominal)
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
-        shaped, replay_note = None, {}
+        shaped, replay_note, tables_note = None, {}, {}
         if sig0:
             # the search starts from the fit's own optimum: a model that misses an effect drifts on the
             # continuous replay, so its polish says nothing about where the effect's fit should start
@@ -507,8 +520,14 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
                 log(f"  recalibrated nominal model: RMS {_rms(res0):.4f} deg")
             lap("select")
             from .refine import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
+            formula, formula_steps = final, list(steps)
             final, steps, shaped = refine(nominal0, final, steps, fit_data, significant, log=log,
                                            persistent=persistent)
+            from .closed_twin import check_tables   # closed loops: a table must help the replay too
+            final = check_tables(formula, final, formula_steps, steps, shaped, data, significant, tables_note)
+            if tables_note and not tables_note["kept"]:
+                log(f"  closed loop: {', '.join(tables_note['tables'])} not kept: replay cost "
+                    f"{tables_note['replay_cost_tables']:.0f} with, {tables_note['replay_cost_formula']:.0f} without")
             lap("refine")
             if final is not nominal0:       # the verdict's test guards the closed loop's replay refit
                 final = polish(final, data, shaped, final=True, note=replay_note, significant=significant)
@@ -521,14 +540,15 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         runner.close()
         bar.close()
     return _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skipped, shaped, out, lap, stages,
-                   cpu0, ref0, replay_note)
+                   cpu0, ref0, replay_note, tables_note)
 
 
 def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skipped, shaped, out, lap, stages,
-            cpu0=None, ref0=None, replay_note=None):
+            cpu0=None, ref0=None, replay_note=None, tables_note=None):
     """The result and its report (written to ``out`` if given); ``elapsed_breakdown_s`` gets the report stage.
     ``ref0``: the nominal model's closed-loop Structures (computed here if None); ``replay_note``: the closed-loop
-    final refit's guard (polish_replay), report.json ``replay_refit``."""
+    final refit's guard (polish_replay), report.json ``replay_refit``; ``tables_note``: the closed loop's check of
+    the learned tables on the replay (closed_twin.check_tables), report.json ``replay_tables``."""
     plant, sensor = final.spec.build(final.x)
     res1 = angle_residuals_deg(simulate(plant, sensor, data), data)
     if ref0 is None:
@@ -551,9 +571,11 @@ def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skippe
     plant_twin, sensor_twin = twin_fit.spec.build(twin_fit.x)
     result.plant, result.sensor = plant_twin.replace(substeps=n_twin), sensor_twin
     result.report["twin_substeps"] = n_twin
-    twin_replay(result, data)
+    twin_replay(result, data, nominal)
     if replay_note:
         result.report["replay_refit"] = replay_note
+    if tables_note:
+        result.report["replay_tables"] = tables_note
     lap("twin_step")
     result.report["skipped_candidates"] = skipped       # [{id, round, reason}]: could not be simulated
     from .model import LOOP_Z
