@@ -90,19 +90,26 @@ def test_twin_of_a_named_effect_predicts_a_closed_loop_recording_at_the_noise():
     assert rms(*res.nominal_fit.spec.build(res.nominal_fit.x)) > 3.0 * true_noise
 
 
-def test_the_exported_twin_gets_an_integrator_step_fine_enough_for_a_closed_loop():
-    """The diagnosis chooses its step on the recordings it is given; a closed loop's voltage changes every sample
-    and needs a finer one. On this nameplate the open-loop recording picks 5 substeps, at which even the truth
-    replays a closed-loop recording at 1.6x the noise; the exported twin's step (twin_substeps: also probed on the
-    plant's own closed and open loop) brings it to the noise."""
+def _rig_and_closed_loop_recording():
+    """Another nameplate (rng 5) fitted at 5 substeps on its open-loop recording: the truth, the plant file its
+    diagnosis is given, a 4 s open-loop recording and a 4 s closed-loop one (the held-out)."""
     from etb_gym.diagnose.proof import _controller
-    from etb_gym.diagnose.run import choose_substeps, twin_substeps
     rng = np.random.default_rng(5)
     truth = random_nameplate(rng, substeps=80)
     plant_file = nameplate_file_plant(truth, rng)
     rec = make_recording(truth, np.random.default_rng(6), duration_s=4.0, name="rig.csv", noise_deg=0.01)
     held = make_recording(truth, np.random.default_rng(7), duration_s=4.0, closed=True, name="held.csv",
                           noise_deg=0.01, controller=_controller(plant_file))
+    return truth, plant_file, rec, held
+
+
+def test_the_exported_twin_gets_an_integrator_step_fine_enough_for_a_closed_loop():
+    """The diagnosis chooses its step on the recordings it is given; a closed loop's voltage changes every sample
+    and needs a finer one. On this nameplate the open-loop recording picks 5 substeps, at which even the truth
+    replays a closed-loop recording at 1.6x the noise; the exported twin's step (twin_substeps: also probed on the
+    plant's own closed and open loop) brings it to the noise."""
+    from etb_gym.diagnose.run import choose_substeps, twin_substeps
+    truth, plant_file, rec, held = _rig_and_closed_loop_recording()
     data = prepare([rec], 12.0)
     n = choose_substeps(truth, data)
     n_twin = twin_substeps(truth.replace(substeps=n), SensorModel(), data)
@@ -119,13 +126,7 @@ def test_the_twin_is_refitted_at_its_own_finer_step():
     the coarse step carry its integration error (here 1e-4 of their value; 0.4 % and a held-out miss of 1.70x the
     noise on the proof's clean random s14), the refit at the twin's step (run.refit_at_twin_step) takes them to
     the truth's, and the twin replays a closed-loop recording as the truth does at that step."""
-    from etb_gym.diagnose.proof import _controller
-    rng = np.random.default_rng(5)
-    truth = random_nameplate(rng, substeps=80)
-    plant_file = nameplate_file_plant(truth, rng)
-    rec = make_recording(truth, np.random.default_rng(6), duration_s=4.0, name="rig.csv", noise_deg=0.01)
-    held = make_recording(truth, np.random.default_rng(7), duration_s=4.0, closed=True, name="held.csv",
-                          noise_deg=0.01, controller=_controller(plant_file))
+    truth, plant_file, rec, held = _rig_and_closed_loop_recording()
     res = diagnose([rec], plant=plant_file, jobs=1, progress=False, verbose=False, max_effects=1)
     assert res.verdict == "match"
     note, n = res.report["twin_step_refit"], res.plant.substeps

@@ -180,6 +180,12 @@ def features(rec) -> dict:
     return {"angle": torque, "current": volt}
 
 
+def chi2_z(explained: float, s2: float, tau: float, q: int) -> float:
+    """The z-score of an explained sum of squares (noise units) against chi^2(q): S = explained / (s^2 tau),
+    z = (S - q) / sqrt(2 q) (module docstring)."""
+    return (explained / (s2 * tau) - q) / math.sqrt(2.0 * q)
+
+
 def structure(r: np.ndarray, groups: dict, kind: str, yardstick: tuple = ()) -> Structure | None:
     """The persistent part of residual ``r`` (in noise units) on the feature ``groups``; None where too short.
     ``yardstick`` (s^2, tau): scale the explained sum of squares by a reference model's left variance and
@@ -210,8 +216,7 @@ def structure(r: np.ndarray, groups: dict, kind: str, yardstick: tuple = ()) -> 
     tau = integrated_time(left)
     if yardstick:
         s2, tau = yardstick
-    S = float(fitted @ fitted) / (s2 * tau)
-    z = (S - p) / math.sqrt(2.0 * p)
+    z = chi2_z(float(fitted @ fitted), s2, tau, p)
     share = math.sqrt(float(np.mean(fitted ** 2)))
     tot = float(fitted @ fitted) or 1.0
     out = {}
@@ -373,9 +378,7 @@ def periodic_structure(plant, sensor, data, omega_o: float | None = None) -> dic
         X = X - Q @ (Q.T @ X)                       # the part the base cannot describe
         b, *_ = np.linalg.lstsq(X, left, rcond=None)
         f = X @ b
-        dS = float(f @ f) / (s2 * tau)
-        q = X.shape[1]
-        return (dS - q) / math.sqrt(2.0 * q)
+        return chi2_z(float(f @ f), s2, tau, X.shape[1])
 
     Ps = np.geomspace(PERIODIC_PERIODS_DEG[0], hi, PERIODIC_TRIALS)
     z = np.array([gain(P) for P in Ps])

@@ -267,16 +267,16 @@ def refit_at_twin_step(fr: F.FitResult, data: Data, n: int, shaped=None, note: d
     fine = dataclasses.replace(fr, spec=at_substeps(fr.spec, n))
     try:
         r0 = F.evaluate(fine.spec, data, fine.x)
-        out = polish(fine, data, shaped=None)
-        r1 = F.evaluate(fine.spec, data, out.x)
     except (SimulationFailed, ValueError, FloatingPointError, np.linalg.LinAlgError) as e:
         if note is not None:
             note.update(substeps=n, failed=str(e))
         return fr
-    kept = float(r1 @ r1) < float(r0 @ r0)
+    c0 = float(r0 @ r0)
+    out = polish(fine, data, shaped=None)        # returns ``fine`` itself where the refit did not lower the cost
+    c1 = out.rss if out is not fine else c0
+    kept = c1 < c0
     if note is not None:
-        note.update(substeps=n, cost_before=float(r0 @ r0), cost_after=float(r1 @ r1), kept=kept,
-                    values=fine.spec.values(out.x) if kept else {})
+        note.update(substeps=n, cost_before=c0, cost_after=c1, kept=kept, values=fine.spec.values(out.x) if kept else {})
     return out if kept else fr
 
 

@@ -939,6 +939,12 @@ def heldout_period_held(s: Series, data: Data) -> float:
         return math.inf
 
 
+def _leading(shape: dict, key: str) -> list:
+    """The shape's significant terms with the periodic part's table (``key``: angle or current) first."""
+    term = "unmodelled_current" if key == "current" else "unmodelled_angle"
+    return [term] + [t for t in shape.get("significant_terms", []) if t != term]
+
+
 def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: dict | None = None) -> Generic:
     """When the generic tables found a torque periodic in angle (:func:`periodic_term`): the same torque as a
     Fourier series in angle, which carries the period to angles the recordings did not visit (a table learned
@@ -1009,10 +1015,8 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: d
         if Pt and dt.get("periodic_r2", 0.0) >= PROBE_R2 and abs(Pt - Ps) <= PERIOD_AGREE * Ps:
             # the tables stay in the twin, but two estimates of the period agree: the series' fit (started from
             # the residual's) and the table's own periodogram, which fell short of MIN_CYCLES
-            term = "unmodelled_current" if key == "current" else "unmodelled_angle"
             shape = {**g.shape, key: {**dt, "periodic": True, "period_deg": Ps, "period_table_deg": Pt},
-                     "residual_periodic": dict(hint),
-                     "significant_terms": [term] + [t for t in g.shape.get("significant_terms", []) if t != term]}
+                     "residual_periodic": dict(hint), "significant_terms": _leading(g.shape, key)}
             shape["summary"] = (g.shape["summary"].replace("a torque over angle that is not periodic",
                                                            "a torque over angle")
                                 + f"; periodic in angle with period {Ps:.1f} deg (a Fourier "
@@ -1039,8 +1043,7 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: d
     shape[key] = {**d, "period_deg": desc["period_deg"], "period_table_deg": P}   # the series' fitted period
     shape["summary"] = g.shape["summary"] + "; in the twin: " + desc["words"]
     if hint is not None:
-        term = "unmodelled_current" if key == "current" else "unmodelled_angle"
-        shape["significant_terms"] = [term] + [t for t in g.shape.get("significant_terms", []) if t != term]
+        shape["significant_terms"] = _leading(g.shape, key)
         shape["residual_periodic"] = dict(hint)
         shape["summary"] = (f"outside the catalogue: a torque periodic in angle, {desc['current_words']}: period "
                             f"{desc['period_deg']:.1f} deg (found in the residual the catalogue model leaves, started from "
