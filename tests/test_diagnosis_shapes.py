@@ -452,3 +452,20 @@ def test_a_table_period_that_is_a_multiple_of_the_residuals_is_flagged():
     assert U.harmonic_period(shape(56.1, periodic=False), ps) is None
     assert U.harmonic_period(shape(56.1, sig=()), ps) is None
     assert U.harmonic_period(shape(56.1), None) is None
+
+
+def test_a_series_whose_energy_is_in_every_mth_harmonic_repeats_with_p_over_m():
+    """unmodelled.reductions: a 3-harmonic series of 28.3 deg with its energy in the 2nd harmonic is a 1-harmonic
+    series of 14.15 deg (round 21: H need not be a multiple of m); a 6-harmonic one in harmonics 3 and 6 repeats
+    with P / 3 (2 harmonics); energy in the 1st harmonic, or one part off the multiples, gives none."""
+    c = {"cos_Nm_per_A_1": -4.4e-5, "cos_Nm_per_A_2": -4.04e-3, "cos_Nm_per_A_3": 2.0e-4,
+         "sin_Nm_per_A_1": -2.7e-4, "sin_Nm_per_A_2": 8.22e-3, "sin_Nm_per_A_3": 3.8e-4}
+    assert U.reductions(c, 3, 28.3, ("current",)) == [(2, 1, {"cos_Nm_per_A_1": -4.04e-3, "sin_Nm_per_A_1": 8.22e-3})]
+    c6 = {f"cos_Nm_{h}": (0.01 if h % 3 == 0 else 0.0) for h in range(1, 7)}
+    c6.update({f"sin_Nm_{h}": 0.0 for h in range(1, 7)})
+    (m, H, start), = U.reductions(c6, 6, 56.1, ("angle",))
+    assert (m, H) == (3, 2) and start["cos_Nm_1"] == start["cos_Nm_2"] == 0.01
+    assert U.reductions({"cos_Nm_1": 0.01, "cos_Nm_2": 0.001, "cos_Nm_3": 0.0}, 3, 28.3, ("angle",)) == []
+    both = {**c, "cos_Nm_1": 0.01, "cos_Nm_2": 0.0, "cos_Nm_3": 0.0}
+    assert U.reductions(both, 3, 28.3, ("angle", "current")) == []
+    assert U.reductions(c, 3, 10.0, ("current",)) == []          # P / 2 below the shortest period tried

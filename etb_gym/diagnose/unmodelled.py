@@ -751,8 +751,9 @@ class Series:
     @property
     def component(self):
         vals = self.fit.spec.values(self.fit.x)
-        return self.fit.spec.candidates[-1].component({k.split(".", 1)[1]: v for k, v in vals.items()
-                                                       if k.startswith(SERIES_ID + ".")})
+        cand = self.fit.spec.candidates[-1]
+        return cand.component({**dict(cand.fixed), **{k.split(".", 1)[1]: v for k, v in vals.items()
+                                                      if k.startswith(SERIES_ID + ".")}})
 
     def describe(self) -> dict:
         """Period, amplitudes (half peak-to-peak over a period: of the angle part in N m, of the current part
@@ -877,22 +878,20 @@ REDUCE_SHARE = 0.05     # a series whose harmonics off the multiples of m hold a
 REDUCE_BY = (3, 2)      # ... repeats with P / m (tried in this order)
 
 
-def reduced(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series | None:
-    """The series' own shortest period: when (in every part) the harmonics that are not multiples of m hold at
-    most REDUCE_SHARE of the energy, the function repeats with P / m (harmonic h of P is harmonic h / m of
-    P / m), so that series (H / m harmonics, started from the multiples' coefficients) is fitted with the
-    period free and kept when its held-out error (period held, :func:`heldout_period_held`) is at most
-    SERIES_MIN_GAIN above ``s``'s. A doubling (:func:`subharmonic`) of a period the tables had at 1.5 times
-    the torque's ends on 3 times it (a 56.1 deg series, all its energy in harmonics 3, 6, 9, 12, for an
-    18.7 deg detent). None when no reduction is kept."""
-    c = _coefficients(s)
-    H = s.harmonics
-    P = math.degrees(s.component.params.period_rad)
+def reductions(c: dict, harmonics: int, period_deg: float, parts: tuple) -> list:
+    """The shorter periods P / m (m of REDUCE_BY, in that order) that a series of ``harmonics`` harmonics with
+    coefficients ``c`` (field_h -> value, :func:`_coefficients`) and period ``period_deg`` repeats with: in every
+    part the harmonics that are not multiples of m hold at most REDUCE_SHARE of the energy. Each as
+    (m, H // m harmonics, start coefficients of the P / m series: harmonic h of P is harmonic h / m of P / m).
+    H need not be a multiple of m: a 3-harmonic series of 28.3 deg whose energy is all in its 2nd harmonic is a
+    1-harmonic series of 14.1 deg (round 21: a 14.13 deg current ripple reported at 2x its period)."""
+    out = []
+    H = harmonics
     for m in REDUCE_BY:
-        if H % m or P / m < PERIODS_DEG[0]:
+        if H < m or period_deg / m < PERIODS_DEG[0]:
             continue
         ok = True
-        for part in s.parts:
+        for part in parts:
             e = np.array([sum(c.get(f"{f}_{h}", 0.0) ** 2 for f in SERIES_PARTS[part]) for h in range(1, H + 1)])
             off = float(e[[h % m != 0 for h in range(1, H + 1)]].sum())
             ok &= e.sum() > 0 and off <= REDUCE_SHARE * float(e.sum())
@@ -901,12 +900,30 @@ def reduced(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series | 
         start = {}
         for key, v in c.items():
             f, _, h = key.rpartition("_")
-            if int(h) % m == 0:
+            if int(h) % m == 0 and int(h) <= H:
                 start[f"{f}_{int(h) // m}"] = v
-        r = fit_series(nominal, data, P / m, s.parts, H // m, start, log, heldout=False)
-        if r is None:
+        out.append((m, H // m, start))
+    return out
+
+
+def reduced(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series | None:
+    """The series' own shortest period (:func:`reductions`): the series of P / m, started from the multiples'
+    coefficients, is fitted with that period held and with it free (output error is steep in the period: a free
+    fit of 1/2 of a 28.29 deg ripple walked to 14.07 deg, true 14.13); the better by held-out error (period
+    held, :func:`heldout_period_held`) is kept when that error is at most SERIES_MIN_GAIN above ``s``'s. A doubling (:func:`subharmonic`) of a
+    period the tables had at 1.5 times the torque's ends on 3 times it (a 56.1 deg series, all its energy in
+    harmonics 3, 6, 9, 12, for an 18.7 deg detent). None when no reduction is kept."""
+    P = math.degrees(s.component.params.period_rad)
+    for m, H, start in reductions(_coefficients(s), s.harmonics, P, s.parts):
+        tries = []
+        for free in (False, True):     # P / m as found with the longer period, and free
+            r = fit_series(nominal, data, P / m, s.parts, H, start, log, period_free=free, heldout=False)
+            if r is not None:
+                r.heldout = heldout_period_held(r, data)
+                tries.append(r)
+        if not tries:
             continue
-        r.heldout = heldout_period_held(r, data)
+        r = min(tries, key=lambda r: r.heldout)
         keep = math.isfinite(r.heldout) and r.heldout <= (1.0 + SERIES_MIN_GAIN) * s.heldout
         log(f"  the series of {P:.2f} deg repeats with 1/{m} of it: {math.degrees(r.component.params.period_rad):.2f} "
             f"deg, {r.harmonics} harmonics, held-out {r.heldout:.3g} against {s.heldout:.3g}" + (" (kept)" if keep else ""))
