@@ -270,6 +270,31 @@ def refine_sensor(cur: F.FitResult, family_id: str, data: Data, log=print) -> Se
     return ref
 
 
+def replaces_later(steps: list, final: F.FitResult, data: Data, log=print) -> SensorRefinement | None:
+    """When the first accepted effect is a sensing family and later effects were added: its map learned on the
+    model of the first step alone, kept if that model predicts held-out data (shapes.heldout_error) as well as
+    the model with every step (within shapes.MIN_GAIN), else None. Why: the offset-and-gain formula cannot bend;
+    a reading curve's bow (a few tenths of a degree over the stroke) is then what the next round sees, and a
+    torque family whose effect grows with the angle (a flux loss, an open stop's contact) absorbs part of it
+    (measured: sensor_offset_gain@1 seed 18, 3B and random nameplates, named with shaft_flux_loss /
+    end_stop_compliance, twin 2.4x / 3.3x the noise, no better than the nominal model's)."""
+    from .shapes import MIN_GAIN as SHAPE_GAIN, Problem, heldout_error
+    if len(steps) < 2 or steps[0].id not in SENSING_MAPS:
+        return None
+    sref = refine_sensor(steps[0].fit, steps[0].id, data, log)
+    if sref is None or not sref.kept:
+        return None
+    first = sref.fit
+    h_first = heldout_error(Problem.make(first.spec, first.x, ("nominal",) + tuple(c.id for c in first.spec.candidates)),
+                            data)
+    h_all = heldout_error(Problem.make(final.spec, final.x, ("nominal",) + tuple(c.id for c in final.spec.candidates)),
+                          data)
+    keep = h_first <= (1.0 + SHAPE_GAIN) * h_all
+    log(f"  {steps[0].id} with its sensor {sref.kind}: held-out {h_first:.3g} against {h_all:.3g} with "
+        f"{', '.join(st.id for st in steps[1:])} added: " + ("the later effects are dropped" if keep else "kept all"))
+    return sref if keep else None
+
+
 def plot(ax, ref: SensorRefinement, title: str) -> None:
     """The learned map on a matplotlib axis: the reading error over the true angle [deg], or the FIR kernel."""
     if ref.kind == "curve":
