@@ -159,3 +159,33 @@ def test_a_sensing_familys_map_replaces_the_later_effects_only_when_it_predicts_
     # a first step that is not a sensing family, or a single step: nothing to replace
     assert SM.replaces_later(steps[::-1], final, None, log=lambda *a: None) is None
     assert SM.replaces_later(steps[:1], first, None, log=lambda *a: None) is None
+
+
+def test_the_reading_curve_and_the_parameters_alternate_while_the_replay_falls(monkeypatch):
+    """sensor_map.refine_sensor's passes (no simulation: learn, fit and the replay stand in): a pass is taken while
+    the replay's sum of squares falls by PASS_GAIN; the last learned curve is kept."""
+    import dataclasses
+    from types import SimpleNamespace
+    from etb_gym.diagnose import fit as F
+
+    @dataclasses.dataclass
+    class Spec_:
+        sensor_map: dict | None = None
+
+    @dataclasses.dataclass
+    class Fit_:
+        spec: Spec_
+        x: np.ndarray
+        rss: float = 0.0
+
+    learned = iter(range(1, 20))
+    monkeypatch.setattr(SM, "learn", lambda spec, x, data, kind: (next(learned), 1.0, 10.0, 5.0))
+    rss = {1: 80.0, 2: 70.0, 3: 65.0, 4: 64.5, 5: 10.0}          # by the curve learned last (the 5th is not reached)
+    monkeypatch.setattr(SM, "replay_rss", lambda spec, x, data: rss[spec.sensor_map["curve"]] if spec.sensor_map
+                        else 100.0)
+    monkeypatch.setattr(F, "fit", lambda spec, data, x, max_nfev: Fit_(spec, x))
+    monkeypatch.setattr(F, "evaluate", lambda spec, data, x: np.zeros(3))
+    data = SimpleNamespace(recs=[SimpleNamespace(residual="replay")])
+    ref = SM.refine_sensor(Fit_(Spec_(), np.zeros(2)), "sensor_offset_gain", data, log=lambda *a: None)
+    assert ref.kept and ref.params == 4                 # passes learned curves 2, 3, 4; 65 -> 64.5 is under 2 %
+    assert ref.fit.spec.sensor_map == {"curve": 4}
