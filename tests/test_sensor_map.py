@@ -134,3 +134,58 @@ def test_a_spec_holds_its_sensor_map_over_the_candidates_sensor_fields():
     assert sensor.filter == filt and sensor.delay_s == 0.0          # the filter replaces the fitted delay
     _, plain = Spec(make_plant("3B")).with_candidate(CANDIDATES["sensor_delay"]).build(x)
     assert plain.filter is None and plain.delay_s == pytest.approx(0.001)
+
+
+def _fake_fit(ids):
+    from types import SimpleNamespace
+    return SimpleNamespace(spec=SimpleNamespace(candidates=[SimpleNamespace(id=c) for c in ids]), x=np.zeros(1))
+
+
+@pytest.mark.parametrize("h_first, h_all, dropped", [(1.02, 1.0, True), (1.3, 1.0, False)])
+def test_a_sensing_familys_map_replaces_the_later_effects_only_when_it_predicts_as_well(monkeypatch, h_first,
+                                                                                        h_all, dropped):
+    """sensor_map.replaces_later: the first step's sensor map against every step, by held-out error (no
+    simulation here: the map, the fits and the held-out errors stand in)."""
+    from types import SimpleNamespace
+    from etb_gym.diagnose import shapes as S
+    first, final = _fake_fit(["sensor_offset_gain"]), _fake_fit(["sensor_offset_gain", "shaft_flux_loss"])
+    sref = SM.SensorRefinement("sensor_offset_gain", "curve", None, 1.0, 10.0, 1.0, kept=True, fit=first)
+    monkeypatch.setattr(SM, "refine_sensor", lambda cur, fid, data, log: sref)
+    monkeypatch.setattr(S.Problem, "make", classmethod(lambda cls, spec, x, ids: spec))
+    monkeypatch.setattr(S, "heldout_error", lambda spec, data: h_first if spec is first.spec else h_all)
+    steps = [SimpleNamespace(id="sensor_offset_gain", fit=first), SimpleNamespace(id="shaft_flux_loss", fit=final)]
+    got = SM.replaces_later(steps, final, None, log=lambda *a: None)
+    assert (got is sref) == dropped
+    # a first step that is not a sensing family, or a single step: nothing to replace
+    assert SM.replaces_later(steps[::-1], final, None, log=lambda *a: None) is None
+    assert SM.replaces_later(steps[:1], first, None, log=lambda *a: None) is None
+
+
+def test_the_reading_curve_and_the_parameters_alternate_while_the_replay_falls(monkeypatch):
+    """sensor_map.refine_sensor's passes (no simulation: learn, fit and the replay stand in): a pass is taken while
+    the replay's sum of squares falls by PASS_GAIN; the last learned curve is kept."""
+    import dataclasses
+    from types import SimpleNamespace
+    from etb_gym.diagnose import fit as F
+
+    @dataclasses.dataclass
+    class Spec_:
+        sensor_map: dict | None = None
+
+    @dataclasses.dataclass
+    class Fit_:
+        spec: Spec_
+        x: np.ndarray
+        rss: float = 0.0
+
+    learned = iter(range(1, 20))
+    monkeypatch.setattr(SM, "learn", lambda spec, x, data, kind: (next(learned), 1.0, 10.0, 5.0))
+    rss = {1: 80.0, 2: 70.0, 3: 65.0, 4: 64.5, 5: 10.0}          # by the curve learned last (the 5th is not reached)
+    monkeypatch.setattr(SM, "replay_rss", lambda spec, x, data: rss[spec.sensor_map["curve"]] if spec.sensor_map
+                        else 100.0)
+    monkeypatch.setattr(F, "fit", lambda spec, data, x, max_nfev: Fit_(spec, x))
+    monkeypatch.setattr(F, "evaluate", lambda spec, data, x: np.zeros(3))
+    data = SimpleNamespace(recs=[SimpleNamespace(residual="replay")])
+    ref = SM.refine_sensor(Fit_(Spec_(), np.zeros(2)), "sensor_offset_gain", data, log=lambda *a: None)
+    assert ref.kept and ref.params == 4                 # passes learned curves 2, 3, 4; 65 -> 64.5 is under 2 %
+    assert ref.fit.spec.sensor_map == {"curve": 4}

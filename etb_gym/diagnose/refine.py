@@ -196,6 +196,12 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
                     f"{len(steps)} effects ({h_all:.3g}): {', '.join(st.id for st in steps[1:])} dropped")
                 res.refinements = [first]
                 cur, steps, done = first.fit, steps[:1], True
+    if len(steps) > 1 and not done:     # a sensing family's map may do what the later effects patched (sensor_map.py)
+        from .sensor_map import replaces_later
+        sref = replaces_later(steps, final, data, log)
+        if sref is not None:
+            res.sensor_maps.append(sref)
+            cur, steps, done = sref.fit, steps[:1], True
     for st in ([] if done else steps):
         ref = refine_family(cur, st.id, data, log)
         if ref is None:
