@@ -962,28 +962,10 @@ def _leading(shape: dict, key: str) -> list:
     return [term] + [t for t in shape.get("significant_terms", []) if t != term]
 
 
-def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: dict | None = None) -> Generic:
-    """When the generic tables found a torque periodic in angle (:func:`periodic_term`): the same torque as a
-    Fourier series in angle, which carries the period to angles the recordings did not visit (a table learned
-    over the visited angles falls back to zero elsewhere). The series' parts are chosen by held-out error
-    (the same folds as the tables'): a torque of the angle alone, one per ampere of current, then both, and
-    SERIES_HARMONICS harmonics (more, or both parts, only when they lower it by SERIES_MIN_GAIN). The series
-    replaces the tables in the twin (``g.series``, ``g.fit``, ``g.heldout``) when its held-out error is within
-    SERIES_TOL of the tables' (fewer coefficients, and a shape that holds beyond the visited angles); the
-    tables' description and their importance stay. ``hint``: a periodic structure of the residual
-    (:func:`residual_period`) whose period starts the series when the tables show none; the series is then
-    kept only when its held-out error is lower than the tables' by SERIES_MIN_GAIN, and its term becomes the
-    significant one."""
-    if hint is None:
-        d = periodic_term(g.shape)
-        if d is None or not d.get("period_deg"):
-            return g
-        key = "angle" if d is g.shape.get("angle") else "current"
-    else:                      # the period of the residual's structure (residual_period), the tables show none
-        key = "current" if hint["current_proportional"] else "angle"
-        d = {**g.shape.get(key, {}), "periodic": True, "period_deg": float(hint["period_deg"]),
-             "residual_z": float(hint["z"])}
-    P = float(d["period_deg"])
+def _series_from(P: float, nominal: F.FitResult, data: Data, log=print):
+    """:func:`with_series`'s search from the period ``P`` [deg]: a scan, each part, both parts, more harmonics,
+    a multiple (:func:`subharmonic`) and the series' own shortest period (:func:`reduced`). Returns (best series,
+    the multiple's series or None, P), or None when no series could be fitted."""
     H0, H1 = SERIES_HARMONICS
     P0 = scan_period(nominal, data, P, H0, log)
     fits = []
@@ -999,7 +981,7 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: d
                 log(f"  Fourier series in angle ({part}, {H0} harmonics): period "
                     f"{math.degrees(s.component.params.period_rad):.2f} deg, held-out {s.heldout:.3g}")
     if not fits:
-        return g
+        return None
     best = min(fits, key=lambda s: s.heldout)
     if len(fits) == 2:           # both parts, from the two fits' coefficients
         vals = {}
@@ -1025,6 +1007,45 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: d
         if best is sub:
             sub = red
         best = red
+    return best, sub, P
+
+
+def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: dict | None = None) -> Generic:
+    """When the generic tables found a torque periodic in angle (:func:`periodic_term`): the same torque as a
+    Fourier series in angle, which carries the period to angles the recordings did not visit (a table learned
+    over the visited angles falls back to zero elsewhere). The series' parts are chosen by held-out error
+    (the same folds as the tables'): a torque of the angle alone, one per ampere of current, then both, and
+    SERIES_HARMONICS harmonics (more, or both parts, only when they lower it by SERIES_MIN_GAIN). The series
+    replaces the tables in the twin (``g.series``, ``g.fit``, ``g.heldout``) when its held-out error is within
+    SERIES_TOL of the tables' (fewer coefficients, and a shape that holds beyond the visited angles); the
+    tables' description and their importance stay. ``hint``: a periodic structure of the residual
+    (:func:`residual_period`) whose period starts the series when the tables show none; the series is then
+    kept only when its held-out error is lower than the tables' by SERIES_MIN_GAIN, and its term becomes the
+    significant one."""
+    if hint is None:
+        d = periodic_term(g.shape)
+        if d is None or not d.get("period_deg"):
+            return g
+        key = "angle" if d is g.shape.get("angle") else "current"
+    else:                      # the period of the residual's structure (residual_period), the tables show none
+        key = "current" if hint["current_proportional"] else "angle"
+        d = {**g.shape.get(key, {}), "periodic": True, "period_deg": float(hint["period_deg"]),
+             "residual_z": float(hint["z"])}
+    P = float(d["period_deg"])
+    starts = [P]
+    if hint is not None:       # the table's own periodogram, short of the test, is a second estimate of the period
+        dt = g.shape.get(key, {})
+        Pt = dt.get("period_deg")
+        if Pt and dt.get("periodic_r2", 0.0) >= PROBE_R2 and abs(Pt - P) > PERIOD_AGREE * P:
+            starts.append(float(Pt))
+    found = [r for r in (_series_from(Q, nominal, data, log) for Q in starts) if r is not None]
+    if not found:
+        return g
+    if len(found) > 1:
+        log("  the series from the residual's period and from the table's: held-out "
+            + " and ".join(f"{r[0].heldout:.3g} ({math.degrees(r[0].component.params.period_rad):.2f} deg)"
+                           for r in found))
+    best, sub, P = min(found, key=lambda r: r[0].heldout)
     if hint is not None and best.heldout >= (1.0 - SERIES_MIN_GAIN) * g.heldout:
         Ps = math.degrees(best.component.params.period_rad)
         dt = g.shape.get(key, {})
@@ -1064,11 +1085,13 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: d
         shape["residual_periodic"] = dict(hint)
         shape["summary"] = (f"outside the catalogue: a torque periodic in angle, {desc['current_words']}: period "
                             f"{desc['period_deg']:.1f} deg (found in the residual the catalogue model leaves, started from "
-                            f"{hint['period_deg']:.1f} deg; the tables showed no period); in the twin: {desc['words']}")
+                            f"{P:.1f} deg; the residual's {hint['period_deg']:.1f} deg; the tables showed no period); "
+                            f"in the twin: {desc['words']}")
     log(f"  the Fourier series replaces the tables in the twin: held-out {best.heldout:.3g} against "
         f"{g.heldout:.3g}; {desc['words']}")
+    rms = _rms_deg(best.fit.spec, best.fit.x, data)    # the generic model is now the series (compare's RMS test)
     return dataclasses.replace(g, fit=best.fit, heldout=best.heldout, shape=shape, series=best,
-                               heldout_tables=g.heldout)
+                               heldout_tables=g.heldout, rms_deg=rms if math.isfinite(rms) else g.rms_deg)
 
 
 def plot_series(ax, series: Series, title: str):
