@@ -11,7 +11,6 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
 
 from etb_gym.diagnose import explain as E
 from etb_gym.diagnose import fit as F
