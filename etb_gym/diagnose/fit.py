@@ -19,6 +19,8 @@ by the observer), and for a candidate declared ``profiled`` (candidates.py: a fr
 free play acts to first order like a lower spring preload, which the calibration has already fitted, so along the
 play alone the residual only rises and the fit stopped at zero play (RSS equal to 12 digits) while the play and the
 preload moved together reach the truth's 40 % lower RSS (backlash 3B seed 1, closed loop; docs/diagnosis.md round 13).
+A candidate that declares ``starts`` of its second parameter (a Stribeck velocity) is, when new, also fitted from a
+grid of starts (:func:`multi_start`; docs/diagnosis.md round 21).
 
 Scores: BIC = m_eff ln(RSS/m) + p ln(m_eff),  m_eff = m / tau_int.
 Cross-validation: samples in alternating time blocks form two folds; each fold's parameters are fitted
@@ -326,7 +328,7 @@ def multi_start(fun, x0: np.ndarray, index: int, lo, hi, starts, max_nfev: int, 
     (stribeck_friction@2 3B closed s13: from the 1-D scan at the Stribeck velocity 0.05 rad/s the fit stopped at
     RSS 1.62e6 and stiction 0.144 N m; from stiction 0.14 and 0.2 rad/s it reached 0.78e6 at 0.112 N m, 0.21 rad/s,
     the Coulomb level 0.2249 against the truth's 0.2238; docs/diagnosis.md round 21). The short fits' costs rank
-    the basins only roughly (there the best short fit was the third best full one), hence several full fits.
+    the basins only roughly (there the best full fit came from the third best short one), hence several full fits.
     Returns the least_squares result with the lowest cost and the number of evaluations, or (None, n)."""
     firsts = [0.0] + scan_offsets(lo[index] - x0[index] + 1e-9, hi[index] - x0[index] - 1e-9)
     seconds = [float(x0[index + 1])] + [float(v) for v in starts]
