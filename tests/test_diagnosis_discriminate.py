@@ -262,3 +262,28 @@ def test_a_near_tie_goes_to_the_family_whose_region_holds_the_gain(monkeypatch, 
                            log=lambda *a: None) is None
     assert D.region_choice(fits["ref"], screened, "sensor_offset_gain", None, passing[:1], 10.0,
                            log=lambda *a: None) is None
+
+
+@pytest.mark.parametrize("ms, expect", [
+    # the current model, the voltage-side leader, the torque-side rival (mean square, noise units)
+    ((2.42, 25.7, 2.96), "angle_dependent_friction"),   # measured: angle_dependent_friction@1 random s18, round 21
+    ((2.42, 4.5, 2.96), None),                          # the leader's current is not twice as bad
+    ((1.0, 3.5, 1.0), None),                            # ... nor above CURRENT_MS_MIN
+    ((2.42, 25.7, 14.0), None),                         # the rival's fit spoils the current too
+    ((None, None, None), None),                         # no current recorded
+])
+def test_a_voltage_side_leader_that_spoils_the_current_yields_to_a_torque(monkeypatch, ms, expect):
+    """A voltage drop acts on the current before the torque: a supply drop whose fit moves the plate while the
+    recorded current, at the noise without it, is left 10x worse is a torque in disguise (discriminate.torque_side)."""
+    ids = ("ref", "supply_drop", "angle_dependent_friction")
+    table = dict(zip(ids, ms))
+    monkeypatch.setattr(D, "current_ms", lambda fr, data: table.get(fr.x, 1.0))
+    fits = {c: _sfit(c) for c in ids}
+    screened = [(-184, "supply_drop", fits["supply_drop"]),
+                (-80, "angle_dependent_friction", fits["angle_dependent_friction"]),
+                (-30, "sensor_offset_gain", _sfit("sensor_offset_gain")), (-5, "airflow_torque", _sfit("airflow"))]
+    ev = D.voltage_side(fits["ref"], screened, "supply_drop", None, 10.0, log=lambda *a: None)
+    assert (ev["winner"] if ev else None) == expect
+    if ev:
+        assert ev["rivals"] == ["supply_drop"] and "sensor_offset_gain" not in ev["current_ms"]
+        assert "airflow_torque" not in ev["current_ms"]                # not significant

@@ -86,3 +86,41 @@ def test_observer_recordings_are_cross_validated_on_short_blocks_replays_on_long
         switches = np.flatnonzero(np.diff(a.astype(int))) + 1
         assert np.allclose(np.diff(t[switches]), block, atol=2e-3), block
     assert F.FOLD_BLOCK_OBSERVER_S < F.FOLD_BLOCK_S
+
+
+def _two_basins(a=(1.0, 0.0), b=(4.0, 6.0)):
+    """A cost with two basins: near ``a`` it bottoms out at 1, near ``b`` at 0 (which basin: the nearer point)."""
+    a, b = np.asarray(a), np.asarray(b)
+
+    def fun(x):
+        fun.calls += 1
+        if np.sum((x - a) ** 2) < np.sum((x - b) ** 2):
+            return np.array([x[0] - a[0], x[1] - a[1], 1.0])
+        return np.array([x[0] - b[0], x[1] - b[1], 0.0])
+
+    fun.failure, fun.calls = None, 0
+    return fun
+
+
+def test_multi_start_reaches_the_basin_that_a_start_of_the_second_parameter_opens():
+    """A friction's fit stays in the basin it starts in (stribeck_friction@2 3B closed s13, round 21): with the
+    second parameter started at 6 as well, the grid reaches the lower basin that a fit from 0 cannot."""
+    from scipy.optimize import least_squares
+    fun = _two_basins()
+    lo, hi = np.array([-1.0, -1.0]), np.array([10.0, 10.0])
+    x0 = np.zeros(2)
+    plain = least_squares(fun, x0, bounds=(lo, hi))
+    assert plain.cost > 0.4                                  # the fit from the start: the upper basin
+    best, n = F.multi_start(fun, x0, 0, lo, hi, [6.0], 20, 0.03)
+    assert best.cost < 1e-8 and np.allclose(best.x, [4.0, 6.0], atol=1e-4)
+    assert n > 0 and fun.failure is None
+    none, _ = F.multi_start(fun, x0, 0, lo, hi, [], 20, 0.03)  # without the second start: the grid of the first
+    assert none is not None                                     # parameter alone still gives a fit
+
+
+def test_stribeck_friction_declares_starts_of_its_stribeck_velocity_inside_its_bounds():
+    from etb_gym.diagnose.candidates import CANDIDATES
+    c = CANDIDATES["stribeck_friction"]
+    p = c.fit[1]
+    assert c.starts and all(p.lower < v < p.upper for v in c.starts)
+    assert all(not k.starts for k in CANDIDATES.values() if k.id != "stribeck_friction")

@@ -69,6 +69,11 @@ class Candidate:
     # ((effect field, value or plant key), ...); a plant key (a str, as in ``ties``) takes the plant's own value.
     # explain.switched_off uses it for the footprint guard (every fitted family has one)
     off: tuple = ()
+    # starting values (physical, written for 3B as FitParam's numbers) of the *second* fitted parameter: where the
+    # first's value alone does not place the fit's basin (a Stribeck velocity that spans decades over rigs), the
+    # fit starts from the grid (scan values of the first) x (these), short fits from each and full fits from the
+    # best few (fit.multi_start)
+    starts: tuple = ()
 
     @property
     def sensor(self) -> bool:
@@ -194,7 +199,9 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
     Candidate("stribeck_friction", "friction", fx.StribeckFriction.description,
               (P("stiction_Nm", 0.01, 0.0, 0.4, 0.02, "N m", ref="friction_Nm"),
                P("stribeck_velocity_rad_s", 0.05, 0.002, 3.0, 0.05, "rad/s")), fx.StribeckFriction,
-              off=(("stiction_Nm", 0.0),)),
+              # a rig's Stribeck velocity spans decades (0.02-1 rad/s); from 0.05 alone the fit of a rational drop
+              # stayed at stiction 0.144 N m (truth 0.080), RSS 2x the best start's (docs/diagnosis.md round 21)
+              off=(("stiction_Nm", 0.0),), starts=(0.2, 1.0)),
     Candidate("angle_dependent_friction", "friction", fx.AngleDependentFriction.description,
               (P("slope_Nm", 0.0, -0.3, 0.3, 0.02, "N m", ref="friction_Nm"),
                P("curvature_Nm", 0.0, -0.8, 0.8, 0.05, "N m", ref="friction_Nm")), fx.AngleDependentFriction,

@@ -28,6 +28,7 @@ import numpy as np
 
 from . import fit as F
 from . import shapes as S
+from .candidates import CANDIDATES
 from .model import Data
 
 GROUP = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry")
@@ -169,6 +170,8 @@ CURRENT_MS_MIN = 4.0  # the current model's current residual stands above the no
                       # twice the noise in RMS; a clean recording leaves about 1.3)
 CURRENT_SHARE = 0.25  # a voltage-side candidate accounts for at least this share of it ...
 CURRENT_DOMINANCE = 2.0   # ... and for at least this many times what the leader accounts for
+CURRENT_WORSE = 2.0   # a voltage-side leader whose fit leaves this many times the current model's current residual
+                      # (and at least CURRENT_MS_MIN) buys the angle with the current: a torque-side rival goes first
 
 
 def current_ms(fr: F.FitResult, data: Data) -> float | None:
@@ -210,7 +213,7 @@ def voltage_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_
     angle's held-out error had named angle-dependent friction; its fit left the current residual at 59.0 of
     59.3, the supply drop's at 28.8 (docs/diagnosis.md, "Voltage side or torque side")."""
     if leader in VOLTAGE_SIDE:
-        return None
+        return torque_side(ref, screened, leader, data, bic_min, log)
     fits = {c: fr for _, c, fr in screened}
     volts = [c for d, c, _ in screened if c in VOLTAGE_SIDE and d < -bic_min]
     if leader not in fits or not volts:
@@ -235,6 +238,46 @@ def voltage_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_
             "rule": "an effect on the plate changes the current only through the back-EMF: a voltage-side candidate "
                     f"that accounts for at least {CURRENT_SHARE:.0%} of the current model's current residual (above "
                     f"the noise) and {CURRENT_DOMINANCE:g}x what the leader accounts for is named"}
+
+
+def torque_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_min: float,
+                log=print) -> dict | None:
+    """The other way round: ``leader`` is a voltage-side candidate (a supply drop, a resistance, an inductance),
+    and its screening fit leaves the current residual CURRENT_WORSE times the current model's (``ref``) or more,
+    at least CURRENT_MS_MIN, while a torque-side candidate (a plate or drive-torque effect: neither VOLTAGE_SIDE
+    nor a sensor) screened significant and does not (its current residual below the leader's / CURRENT_WORSE).
+    An effect in the coil's voltage balance changes the current first, before the torque: a fit that moves the
+    plate by a voltage drop the recorded current does not show (the current was within the noise with no drop)
+    is a torque in disguise, and the torque-side rival, best dBIC first, is named. Returns the evidence or None.
+
+    Measured (angle_dependent_friction@1 random s18, open loop, a Gaussian band of friction in angle; round 21):
+    supply_drop led the screening (dBIC -184 against -80, held-out +51 % against +52 %) and was named; the current
+    model's current residual was 2.42 (mean square, noise units; 1.28 where the plate rests), the supply drop's fit
+    left 25.7 (22.6 at rest), the angle-dependent friction's 2.96."""
+    fits = {c: fr for _, c, fr in screened}
+    if leader not in fits:
+        return None
+    m0 = current_ms(ref, data)
+    if m0 is None:
+        return None
+    ml = current_ms(fits[leader], data)
+    if ml is None or not (ml >= CURRENT_MS_MIN and ml >= CURRENT_WORSE * max(m0, 1.0)):
+        return None
+    torques = [c for d, c, _ in screened if c not in VOLTAGE_SIDE and c in CANDIDATES and not CANDIDATES[c].sensor
+               and d < -bic_min]
+    ms = {"current model": m0, leader: ml}
+    for c in torques:
+        ms[c] = current_ms(fits[c], data)
+    ok = [c for c in torques if ms[c] is not None and ms[c] * CURRENT_WORSE <= ml]
+    log("  torque or voltage side: current residual (mean square, noise units) "
+        + ", ".join(f"{c} {v:.3g}" for c, v in ms.items()) + (f" -> {ok[0]}" if ok else f" -> {leader} stands"))
+    if not ok:
+        return None
+    return {"rivals": [leader], "winner": ok[0], "current_ms": ms,
+            "signature": {c: SIGNATURE.get(c, "a torque on the plate") for c in (leader, ok[0])},
+            "rule": "an effect in the coil's voltage balance changes the current first: a voltage-side leader whose "
+                    f"fit leaves {CURRENT_WORSE:g}x the current model's current residual or more (and at least "
+                    f"{CURRENT_MS_MIN:g}) yields to a torque-side candidate whose fit does not"}
 
 
 # ------------------------------------------------------------------------------------ where the gain lives

@@ -19,6 +19,8 @@ by the observer), and for a candidate declared ``profiled`` (candidates.py: a fr
 free play acts to first order like a lower spring preload, which the calibration has already fitted, so along the
 play alone the residual only rises and the fit stopped at zero play (RSS equal to 12 digits) while the play and the
 preload moved together reach the truth's 40 % lower RSS (backlash 3B seed 1, closed loop; docs/diagnosis.md round 13).
+A candidate that declares ``starts`` of its second parameter (a Stribeck velocity) is, when new, also fitted from a
+grid of starts (:func:`multi_start`; docs/diagnosis.md round 21).
 
 Scores: BIC = m_eff ln(RSS/m) + p ln(m_eff),  m_eff = m / tau_int.
 Cross-validation: samples in alternating time blocks form two folds; each fold's parameters are fitted
@@ -314,6 +316,46 @@ def coscale_start(fun, spec: Spec, x0: np.ndarray, r0: np.ndarray, index: int, l
     return x, r, n
 
 
+MULTI_SHORT_NFEV = 3    # multi_start: the short fit from every start of the grid ...
+MULTI_KEEP = 3          # ... and the full fits from this many of the best short ones
+
+
+def multi_start(fun, x0: np.ndarray, index: int, lo, hi, starts, max_nfev: int, diff_step: float):
+    """The best local fit from a grid of starts: the main parameter (``index``) at 0 and its scan values
+    (:func:`scan_offsets`), the next parameter at its start and at ``starts`` (normalized); a short least-squares
+    fit (MULTI_SHORT_NFEV) from every grid point, then fits with ``max_nfev`` from the MULTI_KEEP best of those.
+    Why: a friction's stick-slip landscape has a basin per start, and the fit moves little from where it starts
+    (stribeck_friction@2 3B closed s13: from the 1-D scan at the Stribeck velocity 0.05 rad/s the fit stopped at
+    RSS 1.62e6 and stiction 0.144 N m; from stiction 0.14 and 0.2 rad/s it reached 0.78e6 at 0.112 N m, 0.21 rad/s,
+    the Coulomb level 0.2249 against the truth's 0.2238; docs/diagnosis.md round 21). The short fits' costs rank
+    the basins only roughly (there the best full fit came from the third best short one), hence several full fits.
+    Returns the least_squares result with the lowest cost and the number of evaluations, or (None, n)."""
+    firsts = [0.0] + scan_offsets(lo[index] - x0[index] + 1e-9, hi[index] - x0[index] - 1e-9)
+    seconds = [float(x0[index + 1])] + [float(v) for v in starts]
+    n = 0
+    short = []
+    for d in firsts:
+        for v in seconds:
+            x = x0.copy()
+            x[index] = x0[index] + d
+            x[index + 1] = min(max(v, lo[index + 1] + 1e-9), hi[index + 1] - 1e-9)
+            res = least_squares(fun, x, bounds=(lo, hi), method="trf", diff_step=diff_step, x_scale=1.0,
+                                max_nfev=MULTI_SHORT_NFEV, ftol=1e-6, xtol=1e-6, gtol=1e-8)
+            n += int(res.nfev)
+            if fun.failure is None and np.all(np.isfinite(res.fun)):
+                short.append((float(res.fun @ res.fun), res.x))
+    short.sort(key=lambda t: t[0])
+    best = None
+    for _, x in short[:MULTI_KEEP]:
+        res = least_squares(fun, x, bounds=(lo, hi), method="trf", diff_step=diff_step, x_scale=1.0,
+                            max_nfev=max_nfev, ftol=1e-6, xtol=1e-6, gtol=1e-8)
+        n += int(res.nfev)
+        if fun.failure is None and (best is None or res.cost < best.cost):
+            best = res
+    fun.failure = None
+    return best, n
+
+
 def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None,
         diff_step: float = 0.03, scan: int | None = None, profile_scan: bool | None = None) -> FitResult:
     """Least-squares output-error fit of ``spec``'s parameters starting from ``x0`` (normalized). With ``scan``
@@ -345,6 +387,7 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
     if len(x0) == 0:
         return FitResult(spec, x0, float(r0 @ r0), r0.size, None, 1, integrated_time(r0))
     n_scan = 0
+    x_start = x0
     if scan is not None and 0 <= scan < len(x0):
         profile = range(min(len(spec.nominal), scan)) if profile_scan else ()
         xs, rs, n_scan = scan_start(fun, x0, r0, scan, lo, hi, profile, diff_step)
@@ -355,8 +398,19 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
             if float(rc @ rc) < float(rs @ rs):
                 xs, rs = xc, rc
         x0, r0 = xs, rs
+    nfev = max_nfev or 30 * (len(x0) + 1)
     res = least_squares(fun, x0, bounds=(lo, hi), method="trf", diff_step=diff_step, x_scale=1.0,
-                        max_nfev=max_nfev or 30 * (len(x0) + 1), ftol=1e-6, xtol=1e-6, gtol=1e-8)
+                        max_nfev=nfev, ftol=1e-6, xtol=1e-6, gtol=1e-8)
+    last = spec.candidates[-1] if spec.candidates else None
+    if (scan is not None and last is not None and last.starts and len(last.fit) >= 2
+            and scan == len(spec.params) - len(last.fit) and not np.any(x_start[scan:])):
+        # a new candidate (its parameters at their start: the screening; a fit from its screened values keeps it)
+        p2 = last.fit[1]            # normalized starts: the same for every nameplate (init and scale move together)
+        ms, n_ms = multi_start(fun, x_start, scan, lo, hi, [(v - p2.init) / p2.scale for v in last.starts],
+                               nfev, diff_step)
+        n_scan += n_ms
+        if ms is not None and ms.cost < res.cost:
+            res = ms
     r = res.fun
     return FitResult(spec, res.x, float(r @ r), r.size, res.jac, int(res.nfev) + n_scan, integrated_time(r),
                      block_scores(res.jac, r, residual_blocks(data, BLOCK_S, masks)))
