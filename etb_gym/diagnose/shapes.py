@@ -27,7 +27,8 @@ hat-weighted time near them, :func:`visit_time_s`) are *anchored*: pulled to 0 w
 roughness row, so the twin falls back to the family's formula (or, for the generic tables, to the calibrated
 nominal model) where the recordings did not go. Beyond the visited range a family's table over angle does not
 return to the formula but holds formula + table at its value at the last visited knot (:func:`hold_rows`): a
-formula fitted to part of the stroke is not extrapolated (docs/diagnosis.md, round 14). The same holds for knots the recordings visited without seeing them:
+formula fitted to part of the stroke is not extrapolated (docs/diagnosis.md, round 14); a torque-constant table
+(``MapTerm.extrapolate`` "linear") goes on along the line through its last two visited knots instead (round 21). The same holds for knots the recordings visited without seeing them:
 where the plate sits against a stop or in the spring's limp-home band a torque change does not move it, so a
 knot whose Jacobian column has less than ID_MIN of its table's median energy (first linearization of
 :func:`fit_penalized`) is anchored as well (measured: an airflow plateau's table, free at the 0 and 6 deg knots,
