@@ -27,8 +27,7 @@ hat-weighted time near them, :func:`visit_time_s`) are *anchored*: pulled to 0 w
 roughness row, so the twin falls back to the family's formula (or, for the generic tables, to the calibrated
 nominal model) where the recordings did not go. Beyond the visited range a family's table over angle does not
 return to the formula but holds formula + table at its value at the last visited knot (:func:`hold_rows`): a
-formula fitted to part of the stroke is not extrapolated (docs/diagnosis.md, round 14); a torque-constant table
-(``MapTerm.extrapolate`` "linear") goes on along the line through its last two visited knots instead (round 21). The same holds for knots the recordings visited without seeing them:
+formula fitted to part of the stroke is not extrapolated (docs/diagnosis.md, round 14). The same holds for knots the recordings visited without seeing them:
 where the plate sits against a stop or in the spring's limp-home band a torque change does not move it, so a
 knot whose Jacobian column has less than ID_MIN of its table's median energy (first linearization of
 :func:`fit_penalized`) is anchored as well (measured: an airflow plateau's table, free at the 0 and 6 deg knots,
@@ -77,8 +76,6 @@ class MapTerm:
     scale: float                  # typical knot value (normalization of the coefficients)
     unit: str
     fixed: tuple = ()             # other fields of the component ((name, value), ...)
-    extrapolate: str = "hold"     # beyond the visited angles the family's total is held ("hold") or goes on
-                                  # along its last visited slope ("linear"; :func:`hold_rows`)
 
     @property
     def n_coef(self) -> int:
@@ -305,7 +302,7 @@ def family_term(cid: str, base, data: Data) -> MapTerm | None:
         return angle_torque_term(f"{cid}_map", "mechanical", base, data, ANGLE_KNOTS, 0.005)
     if cid in ("shaft_flux_loss", "torque_constant_error"):
         return MapTerm(f"{cid}_map", "magnetic", mx.TorqueConstantMap, angle_grid(base, data, PROFILE_KNOTS),
-                       ("delta_Nm_per_A",), 0.002, "N m/A", extrapolate="linear")
+                       ("delta_Nm_per_A",), 0.002, "N m/A")
     if cid == "angle_dependent_friction":
         return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, PROFILE_KNOTS),
                        ("level_Nm",), 0.005, "N m", (("presliding_rad", 2e-3),))
@@ -365,7 +362,7 @@ class Problem:
             H, b = np.zeros((0, free.size)), np.zeros(0)
             prof = formula_profile(formula, t) if formula is not None and vis is not None else None
             if prof is not None:
-                rows, b, held = hold_rows(vis, prof / t.scale, t.grid if t.extrapolate == "linear" else None)
+                rows, b, held = hold_rows(vis, prof / t.scale)
                 H = np.zeros((rows.shape[0], free.size))
                 for j, k in enumerate(idx):
                     H[:, pos[k]] = rows[:, j]
@@ -433,30 +430,23 @@ def formula_profile(comp, term: "MapTerm") -> np.ndarray | None:
     return out
 
 
-def hold_rows(visit_s: np.ndarray, prof: np.ndarray, grid: np.ndarray | None = None
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def hold_rows(visit_s: np.ndarray, prof: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rows (over one table's knots), targets and the held mask that hold the family's total, formula ``prof`` +
     table, at its value at the first / last visited knot for every knot beyond it (normalized units): a formula
     fitted on part of the stroke is not extrapolated where the recordings did not go (an angle-dependent
     friction's quadratic added 0.13 N m at the open stop, 65 % of the friction, where the data ended 12 deg
-    before; docs/diagnosis.md, round 14). With ``grid`` (the knots' angles) the total goes on instead along the
-    straight line through the last two visited knots (a torque-constant profile: held, it missed a loss still
-    growing beyond a closed loop's last angle, twin 1.86x the noise; round 21); held where only one is visited."""
+    before; docs/diagnosis.md, round 14)."""
     n = prof.size
     seen = np.flatnonzero(np.asarray(visit_s[:n]) >= VISIT_MIN_S)
     held = np.zeros(n, bool)
     rows, b = [], []
     if seen.size:
         for k in list(range(0, seen[0])) + list(range(seen[-1] + 1, n)):
-            e, e2 = (seen[0], seen[0] + 1) if k < seen[0] else (seen[-1], seen[-1] - 1)
-            # total_k = total_e + d (total_e - total_e2), d = 0: held
-            d = (grid[k] - grid[e]) / (grid[e] - grid[e2]) if grid is not None and e2 in seen else 0.0
+            e = seen[0] if k < seen[0] else seen[-1]
             r = np.zeros(n)
-            r[k], r[e] = 1.0, -(1.0 + d)
-            if d:
-                r[e2] = d
+            r[k], r[e] = 1.0, -1.0
             rows.append(r)
-            b.append((1.0 + d) * prof[e] - (d * prof[e2] if d else 0.0) - prof[k])
+            b.append(prof[e] - prof[k])
             held[k] = True
     return (np.array(rows).reshape(-1, n), np.array(b), held)
 
