@@ -59,6 +59,7 @@ VISIT_MIN_S = 0.02       # a knot the recordings spent less time near (hat-weigh
 ANCHOR = 1e3             # ... and is pulled to 0 (the formula alone) with this weight, relative to a roughness row
 ID_MIN = 0.01           # a knot whose Jacobian column carries less than this share of its table's median is not
                          # identified either (the plate pinned at a stop or in the limp-home band): anchored too
+NEAR_ZERO = (0.02, 0.08)  # extra current knots near 0, as fractions of the visited extent (signed_knots)
 OUTER_SPEED = 3.0        # speed tables get a last knot at this multiple of the fastest speed visited (anchored)
 
 
@@ -181,9 +182,11 @@ def speed_grid(data: Data, n: int = 7) -> np.ndarray:
     return np.concatenate([[0.0], np.geomspace(top / 300.0, top, n - 1), [OUTER_SPEED * top]])
 
 
-def current_grid(data: Data, base, n: int = 9) -> np.ndarray:
+def current_grid(data: Data, base, n: int = 9, by_extent: bool = False) -> np.ndarray:
     """n signed knots over the currents the recordings reach (measured, else the supply over R); with a measured
-    current also knots at the stall current +-V/R where that lies beyond (anchored: not visited)."""
+    current also knots at the stall current +-V/R where that lies beyond (anchored: not visited). Half the
+    intervals on each side of 0, or with ``by_extent`` in proportion to each side's extent (at least one each:
+    one spacing over the visited range, :func:`signed_knots`)."""
     cur = [rd.rec.current_A for rd in data.recs if rd.rec.current_A is not None]
     if cur:
         c = np.concatenate(cur)
@@ -195,7 +198,10 @@ def current_grid(data: Data, base, n: int = 9) -> np.ndarray:
     top = max(abs(lo), abs(hi), 0.1)
     lo = min(lo, -0.05 * top)
     hi = max(hi, 0.05 * top)
-    g = np.unique(np.concatenate([np.linspace(lo, 0.0, (n + 1) // 2), np.linspace(0.0, hi, (n + 1) // 2)]))
+    if by_extent:
+        g = signed_knots(lo, hi, n)
+    else:
+        g = np.unique(np.concatenate([np.linspace(lo, 0.0, (n + 1) // 2), np.linspace(0.0, hi, (n + 1) // 2)]))
     if cur:                       # beyond the measured range, up to the stall current (anchored knots)
         R = float(getattr(base.drive.params, "resistance_ohm", 0.0) or 0.0)
         v = max(float(np.max(np.abs(rd.rec.voltage_V))) for rd in data.recs)
@@ -203,6 +209,23 @@ def current_grid(data: Data, base, n: int = 9) -> np.ndarray:
         ext = [x for x in (-stall, stall) if abs(x) > 1.2 * max(abs(lo), abs(hi))]
         g = np.unique(np.concatenate([g, ext]))
     return g
+
+
+def signed_knots(lo: float, hi: float, n: int) -> np.ndarray:
+    """n knots from ``lo`` < 0 to ``hi`` > 0 with one at 0, the n - 1 intervals shared between the two sides in
+    proportion to their extent (at least one each), so the spacing is about the same on both: a closed loop's
+    current is nearly all of one sign, and half the knots on the side it hardly visits left 1.5 A between the
+    knots where it does (supply_drop@1 3B s15 closed; docs/diagnosis.md, round 21)."""
+    m = max(n - 1, 2)
+    k_lo = int(np.clip(round(m * -lo / (hi - lo)), 1, m - 1))
+    g = np.concatenate([np.linspace(lo, 0.0, k_lo + 1), np.linspace(0.0, hi, m - k_lo + 1)])
+    # near the current's sign change, where a drop's forward voltage or a direction-dependent term switches, two
+    # more knots on each side (NEAR_ZERO of the larger side's extent) inside the first interval
+    top = max(-lo, hi)
+    near = [s * f * top for f in NEAR_ZERO for s in (-1.0, 1.0)]
+    first = (g[k_lo - 1], g[k_lo + 2])        # the intervals either side of 0 (g holds 0 twice here)
+    g = np.concatenate([g, [x for x in near if first[0] < x < first[1]]])
+    return np.unique(g)
 
 
 def hat_weights(x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -269,7 +292,7 @@ def family_terms(cid: str, base, data: Data) -> list:
     out = [t] if t is not None else []
     if cid == "torque_constant_error":
         out.append(MapTerm(f"{cid}_current_map", "electrical", mx.CurrentTorqueConstantMap,
-                           current_grid(data, base, 9), ("delta_Nm_per_A",), 0.002, "N m/A"))
+                           current_grid(data, base, 9, by_extent=True), ("delta_Nm_per_A",), 0.002, "N m/A"))
     return out
 
 
@@ -287,10 +310,10 @@ def family_term(cid: str, base, data: Data) -> MapTerm | None:
         return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7),
                        ("opening_Nm", "closing_Nm"), 0.005, "N m", (("presliding_rad", 2e-3),))
     if cid == "supply_drop":
-        return MapTerm(f"{cid}_map", "electrical", mx.CurrentVoltageMap, current_grid(data, base, 9),
+        return MapTerm(f"{cid}_map", "electrical", mx.CurrentVoltageMap, current_grid(data, base, 9, by_extent=True),
                        ("drop_V",), 0.02, "V")
     if cid == "inductance_saturation":
-        return MapTerm(f"{cid}_map", "electrical", mx.CurrentInductanceMap, current_grid(data, base, 9),
+        return MapTerm(f"{cid}_map", "electrical", mx.CurrentInductanceMap, current_grid(data, base, 9, by_extent=True),
                        ("delta_H",), 0.0005, "H")
     if cid == "backlash" and math.isfinite(base.limp_home_rad):     # the springs' torque around limp-home
         return MapTerm(f"{cid}_map", "mechanical", mx.AngleTorqueMap,
