@@ -110,10 +110,12 @@ def worker(a) -> int:
 def run_one(tree: Path, label: str, case: str, seed: int, a, recs: str, substeps: int | None = None,
             duration: float | None = None) -> dict | None:
     """One fresh worker process in ``tree``'s venv; returns its row (None if it failed)."""
+    out = Path(a.out).resolve()                     # the worker runs in the tree: absolute paths only
     env = dict(os.environ, ETB_GYM_CACHE=str(tree / ".kcache"), NUMBA_NUM_THREADS="1", PYTHONHASHSEED="0")
     cmd = ["nice", "-n", "5", str(tree / ".venv" / "bin" / "python"), str(HERE), "worker", "--label", label,
            "--case", case, "--seed", str(seed), "--duration", str(duration or a.duration), "--nameplate", a.nameplate,
-           "--share", str(Path(a.out) / "recs" / ("today" if label.startswith("today") else "ab")), "--work", str(Path(a.out) / "work" / label), "--recs", recs]
+           "--share", str(out / "recs" / ("today" if label.startswith("today") else "ab")),
+           "--work", str(out / "work" / label), "--recs", recs]
     if substeps:
         cmd += ["--substeps", str(substeps)]
     t0 = time.perf_counter()
