@@ -211,7 +211,7 @@ def pair_table(rows, x, y, title):
     keys = sorted({(r["case"], r["seed"]) for r in rows}, key=lambda k: (k[1], k[0]))
     L = [f"### {title}", "",
          f"| case | seed | loop | noise | substeps {x} / {y} | CPU {x} / {y} [s] | ratio | wall {x} / {y} [s] | "
-         f"named {x} / {y} | verdict {x} / {y} | RMS after {x} / {y} | twin {x} / {y} |",
+         f"effects {x} / {y} | verdict {x} / {y} | RMS after {x} / {y} | twin {x} / {y} |",
          "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     cx, cy, wx, wy = [], [], [], []
     same = 0
