@@ -229,15 +229,23 @@ def voltage_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_
         return (m0 - ms[c]) / m0 if ms[c] is not None else -math.inf
 
     ok = [c for c in volts if share(c) >= CURRENT_SHARE and share(c) >= CURRENT_DOMINANCE * max(share(leader), 0.0)]
-    log("  voltage or torque side: current residual (mean square, noise units) "
+    return _side_evidence("voltage or torque side", leader, ok, ms, "a torque on the plate or a sensor error",
+                          "an effect on the plate changes the current only through the back-EMF: a voltage-side "
+                          f"candidate that accounts for at least {CURRENT_SHARE:.0%} of the current model's current "
+                          f"residual (above the noise) and {CURRENT_DOMINANCE:g}x what the leader accounts for is "
+                          "named", log)
+
+
+def _side_evidence(title: str, leader: str, ok: list, ms: dict, other: str, rule: str, log) -> dict | None:
+    """:func:`voltage_side` / :func:`torque_side`'s log line and evidence: the current residuals ``ms``, the first
+    of ``ok`` named over ``leader`` (None when ``ok`` is empty); ``other``: the signature of a family SIGNATURE
+    does not describe."""
+    log(f"  {title}: current residual (mean square, noise units) "
         + ", ".join(f"{c} {v:.3g}" for c, v in ms.items()) + (f" -> {ok[0]}" if ok else f" -> {leader} stands"))
     if not ok:
         return None
     return {"rivals": [leader], "winner": ok[0], "current_ms": ms,
-            "signature": {c: SIGNATURE.get(c, "a torque on the plate or a sensor error") for c in (leader, ok[0])},
-            "rule": "an effect on the plate changes the current only through the back-EMF: a voltage-side candidate "
-                    f"that accounts for at least {CURRENT_SHARE:.0%} of the current model's current residual (above "
-                    f"the noise) and {CURRENT_DOMINANCE:g}x what the leader accounts for is named"}
+            "signature": {c: SIGNATURE.get(c, other) for c in (leader, ok[0])}, "rule": rule}
 
 
 def torque_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_min: float,
@@ -269,15 +277,10 @@ def torque_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_m
     for c in torques:
         ms[c] = current_ms(fits[c], data)
     ok = [c for c in torques if ms[c] is not None and ms[c] * CURRENT_WORSE <= ml]
-    log("  torque or voltage side: current residual (mean square, noise units) "
-        + ", ".join(f"{c} {v:.3g}" for c, v in ms.items()) + (f" -> {ok[0]}" if ok else f" -> {leader} stands"))
-    if not ok:
-        return None
-    return {"rivals": [leader], "winner": ok[0], "current_ms": ms,
-            "signature": {c: SIGNATURE.get(c, "a torque on the plate") for c in (leader, ok[0])},
-            "rule": "an effect in the coil's voltage balance changes the current first: a voltage-side leader whose "
-                    f"fit leaves {CURRENT_WORSE:g}x the current model's current residual or more (and at least "
-                    f"{CURRENT_MS_MIN:g}) yields to a torque-side candidate whose fit does not"}
+    return _side_evidence("torque or voltage side", leader, ok, ms, "a torque on the plate",
+                          "an effect in the coil's voltage balance changes the current first: a voltage-side leader "
+                          f"whose fit leaves {CURRENT_WORSE:g}x the current model's current residual or more (and at "
+                          f"least {CURRENT_MS_MIN:g}) yields to a torque-side candidate whose fit does not", log)
 
 
 # ------------------------------------------------------------------------------------ where the gain lives

@@ -316,6 +316,13 @@ def coscale_start(fun, spec: Spec, x0: np.ndarray, r0: np.ndarray, index: int, l
     return x, r, n
 
 
+def local_fit(fun, x, lo, hi, diff_step: float, max_nfev: int):
+    """The one local least-squares fit (trust-region reflective, bounded, normalized parameters) every fit here
+    runs: from :func:`fit`'s start and from each start of :func:`multi_start`."""
+    return least_squares(fun, x, bounds=(lo, hi), method="trf", diff_step=diff_step, x_scale=1.0,
+                         max_nfev=max_nfev, ftol=1e-6, xtol=1e-6, gtol=1e-8)
+
+
 MULTI_SHORT_NFEV = 3    # multi_start: the short fit from every start of the grid ...
 MULTI_KEEP = 3          # ... and the full fits from this many of the best short ones
 
@@ -339,16 +346,14 @@ def multi_start(fun, x0: np.ndarray, index: int, lo, hi, starts, max_nfev: int, 
             x = x0.copy()
             x[index] = x0[index] + d
             x[index + 1] = min(max(v, lo[index + 1] + 1e-9), hi[index + 1] - 1e-9)
-            res = least_squares(fun, x, bounds=(lo, hi), method="trf", diff_step=diff_step, x_scale=1.0,
-                                max_nfev=MULTI_SHORT_NFEV, ftol=1e-6, xtol=1e-6, gtol=1e-8)
+            res = local_fit(fun, x, lo, hi, diff_step, MULTI_SHORT_NFEV)
             n += int(res.nfev)
             if fun.failure is None and np.all(np.isfinite(res.fun)):
                 short.append((float(res.fun @ res.fun), res.x))
     short.sort(key=lambda t: t[0])
     best = None
     for _, x in short[:MULTI_KEEP]:
-        res = least_squares(fun, x, bounds=(lo, hi), method="trf", diff_step=diff_step, x_scale=1.0,
-                            max_nfev=max_nfev, ftol=1e-6, xtol=1e-6, gtol=1e-8)
+        res = local_fit(fun, x, lo, hi, diff_step, max_nfev)
         n += int(res.nfev)
         if fun.failure is None and (best is None or res.cost < best.cost):
             best = res
@@ -399,8 +404,7 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
                 xs, rs = xc, rc
         x0, r0 = xs, rs
     nfev = max_nfev or 30 * (len(x0) + 1)
-    res = least_squares(fun, x0, bounds=(lo, hi), method="trf", diff_step=diff_step, x_scale=1.0,
-                        max_nfev=nfev, ftol=1e-6, xtol=1e-6, gtol=1e-8)
+    res = local_fit(fun, x0, lo, hi, diff_step, nfev)
     last = spec.candidates[-1] if spec.candidates else None
     if (scan is not None and last is not None and last.starts and len(last.fit) >= 2
             and scan == len(spec.params) - len(last.fit) and not np.any(x_start[scan:])):

@@ -240,7 +240,8 @@ def refine_sensor(cur: F.FitResult, family_id: str, data: Data, log=print) -> Se
     params, lam, cv0, cv1 = got
     # with passes (PASSES) the first curve only has to gain out of fold: the calibrated model has absorbed part of
     # the bow, which the passes take back; the result must then replay MIN_GAIN better (below)
-    gate = 1.0 if PASSES.get(kind, 1) > 1 else 1.0 - MIN_GAIN
+    passes = PASSES.get(kind, 1)
+    gate = 1.0 if passes > 1 else 1.0 - MIN_GAIN
     ref = SensorRefinement(family_id, kind, params, lam, cv0, cv1, kept=cv1 < gate * cv0)
     log(f"  {family_id}: sensor {kind} learned from the data, cross-validated error {cv1:.4g} against {cv0:.4g} "
         f"(roughness {lam:g}){'' if ref.kept else ': not kept'}")
@@ -248,7 +249,7 @@ def refine_sensor(cur: F.FitResult, family_id: str, data: Data, log=print) -> Se
         return ref
     spec = dataclasses.replace(cur.spec, sensor_map=held(kind, params))
     x, prev = cur.x, None
-    for k in range(PASSES.get(kind, 1)):
+    for k in range(passes):
         try:
             fr = F.fit(spec, data, x, max_nfev=REFIT_NFEV)
             again = learn(dataclasses.replace(spec, sensor_map=None), fr.x, data, kind)
@@ -264,11 +265,11 @@ def refine_sensor(cur: F.FitResult, family_id: str, data: Data, log=print) -> Se
         spec = dataclasses.replace(spec, sensor_map=held(kind, again[0]))
         fr = dataclasses.replace(fr, spec=spec, rss=float(np.sum(F.evaluate(spec, data, fr.x) ** 2)))
         x = fr.x
-        now = replay_rss(spec, x, data) if PASSES.get(kind, 1) > 1 else None
+        now = replay_rss(spec, x, data) if passes > 1 else None
         if k and now is not None and not now < (1.0 - PASS_GAIN) * prev:
             break
         prev = now
-    if PASSES.get(kind, 1) > 1 and k:
+    if passes > 1 and k:
         log(f"  {family_id}: sensor {kind} and the model's parameters alternated {k + 1} times")
     # judged on the view the map was learned on (a closed loop's observer residual hides the reading's dynamics:
     # sensor_delay@2 3B s7 closed, CV error -11 %, observer rss not lower); the refit (on the fit's residual, the
@@ -282,7 +283,7 @@ def refine_sensor(cur: F.FitResult, family_id: str, data: Data, log=print) -> Se
     after, fr = min(tries, key=lambda a: a[0])
     if fr.spec is held_spec:
         fr = dataclasses.replace(fr, rss=float(np.sum(F.evaluate(held_spec, data, fr.x) ** 2)))
-    if not after < (1.0 - MIN_GAIN if PASSES.get(kind, 1) > 1 else 1.0) * before:
+    if not after < (1.0 - MIN_GAIN if passes > 1 else 1.0) * before:
         log(f"  {family_id}: the model with the sensor {kind} does not replay the recordings better (rss {after:.4g} "
             f"against {before:.4g}): not kept")
         ref.kept = False
