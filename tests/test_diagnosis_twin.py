@@ -288,3 +288,15 @@ def test_a_closed_loops_learned_table_is_kept_only_where_the_replay_gains(monkey
     assert CT.check_tables("formula", "table", steps, steps, sh, NS(recs=[NS(residual="replay")]), note=note) == "table"
     assert CT.check_tables("formula", "table", steps, [NS(id="airflow_torque")], sh, closed, note=note) == "table"
     assert not note and sh.refinements[0].kept
+
+
+def test_a_closed_loop_replay_refit_refused_by_the_halves_is_kept_where_both_residuals_gain():
+    """run.both_gain (round 22): where a fit on half of a closed loop does not carry to the other half, the whole
+    replay refit is kept only when it lowers the replay's cost and the observer residual's own cost, each by more
+    than its noise (detent_torque 3B s23: replay 16635 -> 5519, observer 5595 -> 5315, noise 155: kept); a refit
+    that gains on the replay alone is refused (supply_drop@1 3B s23: observer 5034 -> 5058)."""
+    from etb_gym.diagnose.run import both_gain
+    assert both_gain([16635.0, 5519.0, 155.0], [5595.0, 5315.0, 155.0])
+    assert not both_gain([8477.0, 6374.0, 155.0], [5034.0, 5058.0, 155.0])
+    assert not both_gain([8477.0, 6374.0, 155.0], [5034.0, 4900.0, 155.0])    # within the observer's noise
+    assert not both_gain([8477.0, 8400.0, 155.0], [5034.0, 4000.0, 155.0])    # within the replay's noise
