@@ -10,7 +10,9 @@ the recorded values (``detect_resolution``), since rounding has no useful deriva
 
 Noise floor: while friction holds the plate still the true angle is constant, so the spread of the
 reading about a cubic trend (presliding creep) inside such *rest runs* is the sensor noise, coloured or not, plus quantization.
-Without rest runs it falls back to the second-difference estimate sigma^2 = E[(y[k+1] - 2y[k] + y[k-1])^2]/6.
+Without rest runs it falls back to the second-difference estimate sigma^2 = E[(y[k+1] - 2y[k] + y[k-1])^2]/6
+(the largest 5 % dropped as motion; where motion fills more, the differences within 5 robust deviations:
+:func:`quiet_sigma`).
 """
 from __future__ import annotations
 
@@ -152,9 +154,31 @@ def second_difference_sigma(y: np.ndarray) -> float:
     return float(math.sqrt(np.mean(d2 ** 2) / 6.0)) if d2.size else 0.0
 
 
+MOTION_RATIO = 3.0     # the 95 % second-difference estimate this far above the robust one: motion, not noise
+ROBUST_CLIP = 5.0      # second differences beyond this many robust standard deviations are motion
+
+
+def quiet_sigma(y: np.ndarray, resolution: float = 0.0) -> float:
+    """The noise's standard deviation from second differences, robust to motion that fills more than the 5 %
+    :func:`second_difference_sigma` drops (a slow sample rate, a plate that moves throughout): when that
+    estimate exceeds MOTION_RATIO times the median-absolute-deviation estimate (at least one quantum of the
+    reading, ``resolution``), the differences within ROBUST_CLIP robust deviations give it instead. On a
+    recording whose second differences are noise both estimates agree and the 95 % one is kept."""
+    s = second_difference_sigma(y)
+    d2 = y[2:] - 2 * y[1:-1] + y[:-2]
+    if d2.size < 8:
+        return s
+    mad = 1.4826 * float(np.median(np.abs(d2 - np.median(d2))))
+    robust = max(mad, float(resolution)) / math.sqrt(6.0)
+    if robust <= 0.0 or s <= MOTION_RATIO * robust:
+        return s
+    quiet = d2[np.abs(d2) <= ROBUST_CLIP * math.sqrt(6.0) * robust]
+    return float(math.sqrt(np.mean(quiet ** 2) / 6.0)) if quiet.size else robust
+
+
 def noise_floor(t_s: np.ndarray, y_deg: np.ndarray, resolution_deg: float) -> tuple[float, list]:
     """(sigma_deg, rest runs): the standard deviation of the reading about the true angle."""
-    s_d2 = second_difference_sigma(y_deg)
+    s_d2 = quiet_sigma(y_deg, resolution_deg)
     band = max(4.0 * s_d2, 1.5 * resolution_deg, 1e-3)
     runs = rest_runs(t_s, y_deg, band)
     if runs:
