@@ -37,3 +37,43 @@ def test_where_the_differences_are_noise_the_estimate_is_unchanged():
         assert quiet_sigma(y, 90.0 / 4096) == second_difference_sigma(y)
     y = 20.0 + 0.02 * rng.standard_normal(3000)           # no quantization
     assert quiet_sigma(y) == second_difference_sigma(y)
+
+
+def _steps_and_rests(rng, n=6000, dt=1e-3):
+    """A plate that rests 150-400 ms between quick moves, with a little creep while it rests."""
+    phi = np.empty(n)
+    k, level = 0, 10.0
+    while k < n:
+        rest = int(rng.uniform(0.15, 0.4) / dt)
+        seg = np.arange(min(rest, n - k))
+        phi[k:k + seg.size] = level + 0.002 * np.sqrt(seg)          # presliding creep
+        k += seg.size
+        move = min(10, n - k)
+        new = rng.uniform(5.0, 80.0)
+        phi[k:k + move] = np.linspace(level, new, move + 2)[1:-1]
+        k += move
+        level = new
+    return np.arange(n) * dt, phi
+
+
+def _ar1(rng, n, a, sigma):
+    e = rng.standard_normal(n) * sigma * math.sqrt(1.0 - a * a)
+    x = np.empty(n)
+    x[0] = rng.standard_normal() * sigma
+    for k in range(1, n):
+        x[k] = a * x[k - 1] + e[k]
+    return x
+
+
+def test_coloured_noise_is_not_read_as_a_smaller_floor():
+    # AR(1) noise of a = 0.85 is smooth: its second differences understate it 3x, and rest runs found in a
+    # band of that size only admit stretches where the noise stayed small; the floor must still be its size
+    q = 90.0 / 4096
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        t, phi = _steps_and_rests(rng)
+        for a, sigma in ((0.0, 0.03), (0.85, 0.03)):
+            y = _quantize(phi + _ar1(rng, t.size, a, sigma), q)
+            floor, _ = noise_floor(t, y, q)
+            true = math.sqrt(sigma ** 2 + q ** 2 / 12.0)
+            assert 0.85 * true < floor < 1.2 * true, (seed, a, floor, true)
