@@ -10,7 +10,9 @@ the recorded values (``detect_resolution``), since rounding has no useful deriva
 
 Noise floor: while friction holds the plate still the true angle is constant, so the spread of the
 reading about a cubic trend (presliding creep) inside such *rest runs* is the sensor noise, coloured or not, plus quantization.
-Without rest runs it falls back to the second-difference estimate sigma^2 = E[(y[k+1] - 2y[k] + y[k-1])^2]/6.
+Without rest runs it falls back to the second-difference estimate sigma^2 = E[(y[k+1] - 2y[k] + y[k-1])^2]/6
+(the largest 5 % dropped as motion; where motion fills more, the differences within 5 robust deviations:
+:func:`quiet_sigma`).
 """
 from __future__ import annotations
 
@@ -152,20 +154,133 @@ def second_difference_sigma(y: np.ndarray) -> float:
     return float(math.sqrt(np.mean(d2 ** 2) / 6.0)) if d2.size else 0.0
 
 
+MOTION_RATIO = 3.0     # the 95 % second-difference estimate this far above the robust one: motion, not noise
+ROBUST_CLIP = 5.0      # second differences beyond this many robust standard deviations are motion
+
+
+def quiet_sigma(y: np.ndarray, resolution: float = 0.0) -> float:
+    """The noise's standard deviation from second differences, robust to motion that fills more than the 5 %
+    :func:`second_difference_sigma` drops (a slow sample rate, a plate that moves throughout): when that
+    estimate exceeds MOTION_RATIO times the median-absolute-deviation estimate (at least one quantum of the
+    reading, ``resolution``), the differences within ROBUST_CLIP robust deviations give it instead. On a
+    recording whose second differences are noise both estimates agree and the 95 % one is kept."""
+    s = second_difference_sigma(y)
+    d2 = y[2:] - 2 * y[1:-1] + y[:-2]
+    if d2.size < 8:
+        return s
+    mad = 1.4826 * float(np.median(np.abs(d2 - np.median(d2))))
+    robust = max(mad, float(resolution)) / math.sqrt(6.0)
+    if robust <= 0.0 or s <= MOTION_RATIO * robust:
+        return s
+    quiet = d2[np.abs(d2) <= ROBUST_CLIP * math.sqrt(6.0) * robust]
+    return float(math.sqrt(np.mean(quiet ** 2) / 6.0)) if quiet.size else robust
+
+
+def _ar_apply(x: np.ndarray, a: float) -> np.ndarray:
+    """R x for the AR(1) correlation matrix R_jk = a^|j-k| (a forward and a backward recursion, O(n))."""
+    from scipy.signal import lfilter
+    if a == 0.0:
+        return x.copy()
+    f = lfilter([1.0], [1.0, -a], x)
+    b = lfilter([1.0], [1.0, -a], x[::-1])[::-1]
+    return f + b - x
+
+
+def _detrended_moments(n: int, a: float) -> tuple[float, float]:
+    """(lag-0, lag-1) sums expected of unit-variance AR(1) noise of coefficient ``a`` after a least-squares
+    polynomial of degree REST_TREND_DEGREE is removed from ``n`` samples: tr(M) and the sum of M's
+    first off-diagonal, M = (I - H) R (I - H), H the polynomial's hat matrix. At a = 0, tr(M) = n - degree - 1."""
+    k = np.linspace(-1.0, 1.0, n)
+    Q, _ = np.linalg.qr(np.vander(k, REST_TREND_DEGREE + 1))
+    RQ = np.column_stack([_ar_apply(Q[:, j], a) for j in range(Q.shape[1])])
+    QRQ = Q.T @ RQ
+    c0 = n - float(np.trace(QRQ))                                   # tr(R) - 2 tr(H R) + tr(H R H)
+    lag = lambda X, Y: float(np.sum(X[1:] * Y[:-1]))               # noqa: E731 -- sum_k X[k+1] Y[k]
+    LQ = Q[1:].T @ Q[:-1]                                           # Q^T L Q, L the shift down
+    c1 = ((n - 1) * a - sum(lag(Q[:, j], RQ[:, j]) + lag(RQ[:, j], Q[:, j]) for j in range(Q.shape[1]))
+          + float(np.trace(LQ @ QRQ)))
+    return c0, c1
+
+
+def _median_share(k: float) -> float:
+    """Median of chi-square(k) / k (Wilson-Hilferty), at least 0.3 (k below 1)."""
+    return max((1.0 - 2.0 / (9.0 * k)) ** 3, 0.3)
+
+
+COLOUR_MIN = 0.6      # below it the noise counts as white: the colour's correction (a few %) is within the
+                      # estimate's scatter (creep and quantization alone give a ~ 0.1-0.3 on white noise)
+MAX_COLOUR = 0.98      # the largest AR(1) coefficient the noise floor corrects for
+
+
+def noise_colour(residuals: list) -> float:
+    """The AR(1) coefficient a of the reading's noise from the detrended rest runs: the one whose expected
+    lag-1 / lag-0 ratio after the detrend (:func:`_detrended_moments`) matches the runs' pooled ratio
+    (the detrend alone makes white noise look anti-correlated, so the raw ratio would understate a)."""
+    r0 = sum(float(np.sum(r ** 2)) for r in residuals)
+    r1 = sum(float(np.sum(r[1:] * r[:-1])) for r in residuals)
+    if r0 <= 0.0:
+        return 0.0
+    target = r1 / r0
+
+    def ratio(a):
+        m = [_detrended_moments(r.size, a) for r in residuals]
+        return sum(c1 for _, c1 in m) / sum(c0 for c0, _ in m)
+    if ratio(0.0) >= target:
+        return 0.0
+    if ratio(MAX_COLOUR) <= target:
+        return MAX_COLOUR
+    lo, hi = 0.0, MAX_COLOUR
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ratio(mid) < target else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def _rest_spread(y_deg: np.ndarray, runs: list) -> float:
+    """The noise's standard deviation inside the rest ``runs``: each run about its cubic trend, scaled by
+    the trend's expected share of coloured noise (:func:`noise_colour` when at least COLOUR_MIN,
+    :func:`_detrended_moments`); the median over runs."""
+    res = []
+    for a, b in runs:
+        seg = y_deg[a:b]
+        k = np.arange(b - a)
+        coef = np.polyfit(k, seg, REST_TREND_DEGREE)    # presliding creep (not a straight line) removed
+        res.append(seg - np.polyval(coef, k))
+    colour = float(np.median([noise_colour([r]) for r in res]))     # a run with creep beyond the trend is an outlier
+    colour = colour if colour >= COLOUR_MIN else 0.0
+    v = []
+    for r in res:
+        c0 = max(_detrended_moments(r.size, colour)[0], 1.0)
+        # the median of the runs is taken: a coloured run's sum of squares has fewer degrees of freedom
+        # (k ~ c0 (1 - a^2) / (1 + a^2)) and a lower median (~ (1 - 2 / 9k)^3 of its mean) than a white one's
+        k0, k = max(r.size - REST_TREND_DEGREE - 1, 1), max(c0 * (1 - colour ** 2) / (1 + colour ** 2), 1.0)
+        v.append(float(np.sum(r ** 2)) / c0 * _median_share(k0) / _median_share(k))
+    return math.sqrt(float(np.median(v)))                  # runs with hidden slow motion do not count
+
+
+BAND_SIGMAS = 4.0      # a rest run's reading stays within this many noise deviations of its running median
+BAND_ROUNDS = 3        # times the band is widened to the runs' own spread (coloured noise)
+WIDEN_RATIO = 2.0      # ... when the runs' spread exceeds the band's deviation this many times (AR(1) noise a >~ 0.7)
+
+
 def noise_floor(t_s: np.ndarray, y_deg: np.ndarray, resolution_deg: float) -> tuple[float, list]:
-    """(sigma_deg, rest runs): the standard deviation of the reading about the true angle."""
-    s_d2 = second_difference_sigma(y_deg)
-    band = max(4.0 * s_d2, 1.5 * resolution_deg, 1e-3)
+    """(sigma_deg, rest runs): the standard deviation of the reading about the true angle, from the rest runs
+    (:func:`_rest_spread`). The runs are found in a band of BAND_SIGMAS second-difference deviations; coloured
+    noise is smoother than white noise of its size, so its second differences understate it, the band only
+    admits runs where the noise happened to stay small, and the spread comes out low. So while the runs'
+    spread exceeds WIDEN_RATIO times the band's deviation, the band is widened to it and the runs found again (up to
+    BAND_ROUNDS times; on white noise the two agree and nothing changes)."""
+    s_d2 = quiet_sigma(y_deg, resolution_deg)
+    band = max(BAND_SIGMAS * s_d2, 1.5 * resolution_deg, 1e-3)
     runs = rest_runs(t_s, y_deg, band)
-    if runs:
-        v = []
-        for a, b in runs:
-            seg = y_deg[a:b]
-            k = np.arange(b - a)
-            coef = np.polyfit(k, seg, REST_TREND_DEGREE)    # presliding creep (not a straight line) removed
-            v.append(float(np.sum((seg - np.polyval(coef, k)) ** 2)) / max(b - a - REST_TREND_DEGREE - 1, 1))
-        s = math.sqrt(float(np.median(v)))                  # runs with hidden slow motion do not count
-    else:
-        s = s_d2
+    s = _rest_spread(y_deg, runs) if runs else s_d2
+    for _ in range(BAND_ROUNDS if runs else 0):
+        if s <= WIDEN_RATIO * band / BAND_SIGMAS:
+            break
+        band = BAND_SIGMAS * s
+        wider = rest_runs(t_s, y_deg, band)
+        if not wider:
+            break
+        runs, s = wider, _rest_spread(y_deg, wider)
     # quantization error is part of the floor even when the held reading does not flicker
     return math.sqrt(max(s ** 2, resolution_deg ** 2 / 12.0)), runs
