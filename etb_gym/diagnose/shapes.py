@@ -49,7 +49,6 @@ from .model import Data, Spec, _layout, residuals, simulate
 
 MIN_GAIN = 0.05          # a map replaces the formula only if the held-out error falls by at least this fraction
 LAMBDAS = tuple(10.0 ** np.arange(-3.0, 3.5, 0.5))   # roughness weights (relative, see _penalty_scale)
-EDGE_STEPS = 6           # ... extended upwards by this many grid steps at most when the largest one is chosen
 GN_ITER = 8             # Gauss-Newton iterations at most (stops when the objective falls by < 0.5 %)
 FD_STEP = 0.5            # finite-difference step in normalized units (a knot value moves by FD_STEP * scale)
 ANGLE_KNOTS = 16         # knots of a refined angle map over the stroke
@@ -62,6 +61,9 @@ ID_MIN = 0.01           # a knot whose Jacobian column carries less than this sh
                          # identified either (the plate pinned at a stop or in the limp-home band): anchored too
 NEAR_ZERO = (0.02, 0.08)  # extra current knots near 0, as fractions of the visited extent (signed_knots)
 OUTER_SPEED = 3.0        # speed tables get a last knot at this multiple of the fastest speed visited (anchored)
+STRIBECK_SPAN = 3e3      # the Stribeck table's knots reach this far below the top speed (0.033 rad/s at 100 rad/s:
+                         # a rig's Stribeck velocity is 0.02-0.2 rad/s; at top / 300 the first knot, 0.33 rad/s,
+                         # left the whole drop in one interval; stribeck_friction@2 3B s22, docs/diagnosis.md round 22)
 
 
 # ------------------------------------------------------------------------------------ map terms
@@ -175,12 +177,13 @@ def local_angle_grid(base, centre_rad: float, below_deg: float, above_deg: float
     return np.linspace(lo, hi, n)
 
 
-def speed_grid(data: Data, n: int = 7) -> np.ndarray:
-    """0 and n-1 knots spaced logarithmically up to the fastest speed the recordings reach, and one at
-    OUTER_SPEED times that (not visited: anchored, so the table returns to the formula beyond the data)."""
+def speed_grid(data: Data, n: int = 7, span: float = 300.0) -> np.ndarray:
+    """0 and n-1 knots spaced logarithmically from the fastest speed the recordings reach down to ``span`` times
+    less, and one at OUTER_SPEED times that (not visited: anchored, so the table returns to the formula beyond
+    the data)."""
     w = np.abs(data_speeds_rad_s(data))
     top = max(float(np.quantile(w, 0.995)), 0.5)
-    return np.concatenate([[0.0], np.geomspace(top / 300.0, top, n - 1), [OUTER_SPEED * top]])
+    return np.concatenate([[0.0], np.geomspace(top / span, top, n - 1), [OUTER_SPEED * top]])
 
 
 def current_grid(data: Data, base, n: int = 9, by_extent: bool = False) -> np.ndarray:
@@ -307,8 +310,8 @@ def family_term(cid: str, base, data: Data) -> MapTerm | None:
     if cid == "angle_dependent_friction":
         return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, PROFILE_KNOTS),
                        ("level_Nm",), 0.005, "N m", (("presliding_rad", 2e-3),))
-    if cid == "stribeck_friction":
-        return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7),
+    if cid == "stribeck_friction":         # its drop lies far below the top speed: STRIBECK_SPAN, same spacing
+        return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 9, STRIBECK_SPAN),
                        ("opening_Nm", "closing_Nm"), 0.005, "N m", (("presliding_rad", 2e-3),))
     if cid == "supply_drop":
         return MapTerm(f"{cid}_map", "electrical", mx.CurrentVoltageMap, current_grid(data, base, 9, by_extent=True),
@@ -591,14 +594,6 @@ def choose_lambdas(J, r, pb: Problem, data: Data, grid=LAMBDAS, sweeps: int = 2)
     grid = list(grid)
     absl = lambda rel: [a * b for a, b in zip(rel, sc)]
     curve = [folds.score(pb, absl([g] * len(sc))) for g in grid]
-    # the grid's upper edge chosen: the data ask for a smoother table than the grid offers; it grows by its own
-    # step while the held-out score still falls (at most EDGE_STEPS more; measured: stribeck_friction@2 3B s22
-    # chose 1e3, the grid's last weight; docs/diagnosis.md, round 22)
-    for _ in range(EDGE_STEPS):
-        if len(grid) < 2 or int(np.argmin(curve)) != len(grid) - 1:
-            break
-        grid.append(grid[-1] * grid[-1] / grid[-2])
-        curve.append(folds.score(pb, absl([grid[-1]] * len(sc))))
     rel = [grid[int(np.argmin(curve))]] * len(sc)
     if len(sc) > 1:
         for _ in range(sweeps):
