@@ -498,6 +498,7 @@ def angle_torque_family(angle_rad, torque_Nm, weight, limp_home_rad: float) -> s
 
 FAMILY_NFEV = 40        # evaluations of a family's formula fit before its table (as explain.FULL_NFEV)
 FAMILY_TIE = 0.02       # families whose tables' held-out errors are this close: the better formula decides
+HELD_AT_NOISE = 4.0     # a held-out error (mean square, noise units) this low leaves nothing for another family
 
 
 @dataclasses.dataclass
@@ -562,9 +563,13 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
     # the families of every significant table, the dominant one's first: the generic tables cannot tell a friction
     # band in angle from a torque-constant profile when the current follows the motion (open loop), so the main
     # table alone may leave out the family that is there (angle_dependent_friction@1 random s22: the current's
-    # table dominated and only its families were tried; docs/diagnosis.md, round 22)
-    ids = list(dict.fromkeys(c for t in dom for c in family_of_term.get(t, ()) if c not in named))
-    alts = [a for a in (_try_family(cur, c, data, log) for c in ids) if a is not None and math.isfinite(a.heldout)]
+    # table dominated and only its families were tried; docs/diagnosis.md, round 22). The other tables' families
+    # are tried only when none of the main table's predicts the held-out folds to the noise (HELD_AT_NOISE).
+    first = [c for c in family_of_term.get(dom[0], ()) if c not in named]
+    rest = [c for c in dict.fromkeys(c for t in dom[1:] for c in family_of_term.get(t, ())) if c not in named and c not in first]
+    alts = [a for a in (_try_family(cur, c, data, log) for c in first) if a is not None and math.isfinite(a.heldout)]
+    if rest and not any(a.heldout <= HELD_AT_NOISE for a in alts):
+        alts += [a for a in (_try_family(cur, c, data, log) for c in rest) if a is not None and math.isfinite(a.heldout)]
     if not alts:
         return None
     best = min(a.heldout for a in alts)
