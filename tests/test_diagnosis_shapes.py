@@ -469,3 +469,15 @@ def test_a_series_whose_energy_is_in_every_mth_harmonic_repeats_with_p_over_m():
     both = {**c, "cos_Nm_1": 0.01, "cos_Nm_2": 0.0, "cos_Nm_3": 0.0}
     assert U.reductions(both, 3, 28.3, ("angle", "current")) == []
     assert U.reductions(c, 3, 10.0, ("current",)) == []          # P / 2 below the shortest period tried
+
+
+@pytest.mark.parametrize("top, first, count", [(100.0, 100.0 / 3e3, 8), (4.67, 0.01, 6), (1.0, 1.0 / 300.0, 6)])
+def test_the_stribeck_speed_table_reaches_low_speeds_at_the_same_spacing(monkeypatch, top, first, count):
+    """The Stribeck family's speed knots go down to top / STRIBECK_SPAN but not below STRIBECK_FLOOR (nor stop
+    above top / 300, the generic tables' reach), log-spaced about as the generic grid (300 over 5 intervals)."""
+    monkeypatch.setattr(S, "data_speeds_rad_s", lambda data: np.full(50, top))
+    g = S.speed_grid(None, 7, S.STRIBECK_FLOOR)
+    assert g[0] == 0.0 and g[-1] == pytest.approx(S.OUTER_SPEED * top)
+    assert g[1] == pytest.approx(first) and g[-2] == pytest.approx(top)
+    assert g.size - 2 == count                      # knots from the first to the top
+    assert np.allclose(S.speed_grid(None, 7), np.concatenate([[0.0], np.geomspace(top / 300, top, 6), [3 * top]]))

@@ -61,6 +61,12 @@ ID_MIN = 0.01           # a knot whose Jacobian column carries less than this sh
                          # identified either (the plate pinned at a stop or in the limp-home band): anchored too
 NEAR_ZERO = (0.02, 0.08)  # extra current knots near 0, as fractions of the visited extent (signed_knots)
 OUTER_SPEED = 3.0        # speed tables get a last knot at this multiple of the fastest speed visited (anchored)
+STRIBECK_SPAN = 3e3      # the Stribeck table's knots reach this far below the top speed (0.033 rad/s at 100 rad/s:
+                         # a rig's Stribeck velocity is 0.02-0.2 rad/s; at top / 300 the first knot, 0.33 rad/s,
+                         # left the whole drop in one interval; stribeck_friction@2 3B s22, docs/diagnosis.md round 22)
+STRIBECK_FLOOR = 0.01    # ... but not below this speed (0.6 deg/s: the recordings' speeds are not resolved there; at
+                         # top/3e3 = 0.0016 rad/s the table's lowest knots bent the closing level by -3 mN m and the
+                         # twin went 6.3x -> 10.9x on stribeck_friction@2 random s22's closed-loop held-out recording)
 
 
 # ------------------------------------------------------------------------------------ map terms
@@ -174,12 +180,18 @@ def local_angle_grid(base, centre_rad: float, below_deg: float, above_deg: float
     return np.linspace(lo, hi, n)
 
 
-def speed_grid(data: Data, n: int = 7) -> np.ndarray:
-    """0 and n-1 knots spaced logarithmically up to the fastest speed the recordings reach, and one at
-    OUTER_SPEED times that (not visited: anchored, so the table returns to the formula beyond the data)."""
+def speed_grid(data: Data, n: int = 7, floor_rad_s: float | None = None) -> np.ndarray:
+    """0 and n-1 knots spaced logarithmically from the fastest speed the recordings reach down to 300 times less,
+    and one at OUTER_SPEED times that (not visited: anchored, so the table returns to the formula beyond the data).
+    With ``floor_rad_s`` the knots reach down to that speed (never less than 1/STRIBECK_SPAN of the top, never
+    above top/300) at the same log spacing (more knots)."""
     w = np.abs(data_speeds_rad_s(data))
     top = max(float(np.quantile(w, 0.995)), 0.5)
-    return np.concatenate([[0.0], np.geomspace(top / 300.0, top, n - 1), [OUTER_SPEED * top]])
+    if floor_rad_s is None:
+        return np.concatenate([[0.0], np.geomspace(top / 300.0, top, n - 1), [OUTER_SPEED * top]])
+    low = min(top / 300.0, max(top / STRIBECK_SPAN, floor_rad_s))
+    m = max(n - 1, int(round(math.log(top / low) / (math.log(300.0) / (n - 2)))) + 1)
+    return np.concatenate([[0.0], np.geomspace(low, top, m), [OUTER_SPEED * top]])
 
 
 def current_grid(data: Data, base, n: int = 9, by_extent: bool = False) -> np.ndarray:
@@ -306,8 +318,8 @@ def family_term(cid: str, base, data: Data) -> MapTerm | None:
     if cid == "angle_dependent_friction":
         return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, PROFILE_KNOTS),
                        ("level_Nm",), 0.005, "N m", (("presliding_rad", 2e-3),))
-    if cid == "stribeck_friction":
-        return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7),
+    if cid == "stribeck_friction":         # its drop lies far below the top speed: STRIBECK_SPAN, same spacing
+        return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7, STRIBECK_FLOOR),
                        ("opening_Nm", "closing_Nm"), 0.005, "N m", (("presliding_rad", 2e-3),))
     if cid == "supply_drop":
         return MapTerm(f"{cid}_map", "electrical", mx.CurrentVoltageMap, current_grid(data, base, 9, by_extent=True),
