@@ -127,3 +127,21 @@ def test_stribeck_friction_declares_starts_of_its_stribeck_velocity_inside_its_b
     p = c.fit[1]
     assert c.starts and all(p.lower < v < p.upper for v in c.starts)
     assert all(not k.starts for k in CANDIDATES.values() if k.id != "stribeck_friction")
+
+
+def test_a_parameter_the_fold_does_not_see_goes_back_to_the_full_datas_value(monkeypatch):
+    """fit.unseen_kept (cross-validation): a parameter whose Jacobian column on the fold's residual carries less
+    than UNSEEN_SS (a stop the plate touched only in the other fold's blocks) returns to the full data's value
+    before the other fold is scored, where that leaves the fold's own residual as it was; a seen one keeps the
+    fold's value (no simulation: evaluate stands in)."""
+    x0 = np.array([0.0, 0.0, 0.0])
+    J = np.array([[3.0, 0.0, 0.0], [1.0, 1e-4, 0.0], [0.0, 0.0, 0.0]])    # parameters 1 and 2 not seen
+    fr = F.FitResult(spec=None, x=np.array([0.4, -3.4, 0.0]), rss=10.0, m=3, jac=J, nfev=1)
+    seen_rss = {}
+    monkeypatch.setattr(F, "evaluate", lambda spec, data, x, masks=None: np.full(1, np.sqrt(seen_rss["v"])))
+    seen_rss["v"] = 10.0
+    np.testing.assert_array_equal(F.unseen_kept(None, None, fr, x0, None), [0.4, 0.0, 0.0])
+    seen_rss["v"] = 12.0                      # the fold's own residual grows: the fold fit's values stand
+    np.testing.assert_array_equal(F.unseen_kept(None, None, fr, x0, None), fr.x)
+    fr_none = F.FitResult(spec=None, x=np.array([1.0]), rss=1.0, m=1, jac=None, nfev=1)
+    np.testing.assert_array_equal(F.unseen_kept(None, None, fr_none, np.zeros(1), None), [1.0])
