@@ -51,6 +51,8 @@ def numerical_tolerance(spec: Spec, x, data: Data) -> None:
     for rd, pa, pb in zip(data.recs, a or [], b or []):
         d = pa[0] - pb[0]
         rd.tol_deg = np.where(np.isfinite(d), d, 0.0)
+        c = pa[1] - pb[1]
+        rd.tol_A = np.where(np.isfinite(c), c, 0.0)
 
 
 SUBSTEP_CHOICES = (5, 10, 20, 40, 80)
