@@ -90,7 +90,7 @@ def current_counts(ratios: list, ref: list | None = None) -> bool:
 
 
 def significant_mismatch(data: Data, res: list, plant, sensor, z_ref: float | None = None,
-                         ref: list | None = None, current_ref: list | None = None) -> bool:
+                         ref: list | None = None, current_ref: list | None = None, current: bool = True) -> bool:
     """:func:`significant_residual`, or a replayed current further from the model's than RMS_K x its noise
     (:func:`current_mismatch`), or a persistent structure in the current residual or in the angle
     innovation over steady motion of a recording scored by the observer (a closed loop: the loop hides an
@@ -100,10 +100,10 @@ def significant_mismatch(data: Data, res: list, plant, sensor, z_ref: float | No
     the rule that accepts a candidate for it) no longer counts. ``ref``: the nominal model's Structures
     (disturbance.persistent_mismatch): the model's are then measured on their yardsticks, and ``z_ref``
     defaults to their deciding z. ``current_ref``: the nominal model's :func:`current_mismatch` ratios
-    (:func:`current_counts`)."""
+    (:func:`current_counts`); ``current`` False: the replayed current is not tested."""
     if significant_residual(data, res):
         return True
-    if current_counts(current_mismatch(data, plant, sensor), current_ref):
+    if current and current_counts(current_mismatch(data, plant, sensor), current_ref):
         return True
     if ref is not None and z_ref is None:
         z_ref = D.deciding_z(ref)
