@@ -238,3 +238,33 @@ def test_generic_tables_are_kept_on_a_closed_loop_structure_only_when_they_accou
     z["catalogue"], z["tables"] = D.Z_DETECT - 0.5, 0.0    # nothing significant to account for
     assert not _accounts(z.get, "catalogue", "tables", log.append)
     assert not _accounts(None, "catalogue", "tables", log.append)
+
+
+def test_structures_are_measured_without_the_models_own_integration_error():
+    """disturbance.predict: the observer's predictions at n and 2n substeps, Richardson-extrapolated. The
+    statistic averages over thousands of samples, so at a coarse step the exact model's own integration error
+    of the current reads as a structure (proof clean s23, random nameplate: z 9.5 at 10 substeps, 1.8 at 40);
+    measured on the extrapolation it reads what the model at a fine step reads."""
+    from etb_gym.diagnose import disturbance as D
+    from etb_gym.diagnose.proof import _controller
+    from etb_gym.diagnose.synthetic import random_nameplate
+    truth = random_nameplate(np.random.default_rng(3), substeps=40)
+    rec = make_recording(truth, np.random.default_rng(103), duration_s=3.0, closed=True, noise_deg=0.01,
+                         name="c.csv", controller=_controller(truth))
+    data = prepare([rec], 12.0, residual="observer")
+    rd = data.recs[0]
+
+    def current_z(pred):
+        return D.structure((pred[1] - rec.current_A) / rd.current_sigma_A, D.features(rec)["current"], "current").z
+
+    coarse, fine = truth.replace(substeps=5), truth.replace(substeps=80)
+    z_coarse = current_z(simulate(coarse, SensorModel(), data)[0])
+    z_fine = current_z(simulate(fine, SensorModel(), data)[0])
+    z_pred = current_z(D.predict(coarse, SensorModel(), data)[0])
+    assert z_coarse > z_fine + 3.0, (z_coarse, z_fine)          # the 5-substep stepper's own error: a structure
+    assert abs(z_pred - z_fine) < 0.5, (z_pred, z_fine)
+    by_kind = {s.kind: s.z for s in D.persistent_mismatch(data, coarse, SensorModel())}
+    assert by_kind["current"] == pytest.approx(z_pred)
+    err = [float(np.sqrt(np.mean((p[1] - simulate(fine, SensorModel(), data)[0][1]) ** 2)))
+           for p in (simulate(coarse, SensorModel(), data)[0], D.predict(coarse, SensorModel(), data)[0])]
+    assert err[1] < 0.25 * err[0], err

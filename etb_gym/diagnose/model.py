@@ -48,6 +48,7 @@ class RecData:
     rest: list              # rest runs (a, b)
     current_sigma_A: float
     tol_deg: np.ndarray | None = None      # the model's own integration error along the recording
+    tol_A: np.ndarray | None = None        # ... and of its current (run.numerical_tolerance)
     closed_loop_evidence: float = 0.0      # see closed_loop_evidence; > LOOP_Z: recorded in closed loop
     residual: str = "replay"               # "replay" (segment-wise output error) or "observer" (observer.py)
 

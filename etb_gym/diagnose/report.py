@@ -15,7 +15,7 @@ from . import disturbance as D
 from . import locate as L
 from .candidates import CANDIDATES
 from .model import angle_residuals_deg, simulate
-from .result import QUANT_K, RMS_K, SCHEMA, Result, significant_mismatch
+from .result import QUANT_K, RMS_K, SCHEMA, Result, current_mismatch, significant_mismatch
 
 
 FIGURES = ("residual_time.png", "residual_regimes.png", "angle_fit.png", "shapes.png")
@@ -127,8 +127,9 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
     before, after = _merge_tables(tab0), _merge_tables(tab1)
     if ref0 is None:                              # a closed loop: current, steady motion (the yardstick)
         ref0 = D.persistent_mismatch(data, *model0)
-    sig0 = significant_mismatch(data, res0, *model0, ref=ref0)
-    sig1 = significant_mismatch(data, res1, plant, sensor, ref=ref0)
+    cur0 = current_mismatch(data, *model0)        # open loop: the replayed current's miss, nominal and final
+    sig0 = significant_mismatch(data, res0, *model0, ref=ref0, current_ref=cur0)
+    sig1 = significant_mismatch(data, res1, plant, sensor, ref=ref0, current_ref=cur0)
     windows = {rd.rec.name: L.windows(rd.rec.t_s, r, rd.noise_deg, rd.tol_deg) for rd, r in zip(data.recs, res0)}
     effects = _effects(data, base, nominal, final, steps, res0, opts)
     quant = max(rd.resolution_deg for rd in data.recs)
@@ -172,6 +173,10 @@ def assemble(recs, data, base, nominal, final, steps, res0, res1, plant, sensor,
         "integrator_substeps": int(plant.substeps),
         "elapsed_s": elapsed,
     }
+    if any(x is not None for x in cur0):          # the replayed current's RMS miss over its noise (result.current_mismatch)
+        cur1 = current_mismatch(data, plant, sensor)
+        report["current_rms_over_noise"] = {rd.rec.name: {"before": a, "after": b}
+                                            for rd, a, b in zip(data.recs, cur0, cur1) if a is not None}
     return Result(report, data, nominal, final, res0, res1, tab0, tab1, plant, sensor, elapsed)
 
 
