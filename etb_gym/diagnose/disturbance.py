@@ -266,8 +266,7 @@ def predict(plant, sensor, data) -> list | None:
     sensor), freed of the model's own integration error (module docstring, "The model's step"): the model at
     its substeps n and at 2n, extrapolated (Richardson, the stepper's order p): x = x_2n + (x_2n - x_n) /
     (2^p - 1). None where the model cannot be simulated; the prediction at n alone where only 2n fails."""
-    from .model import simulate
-    from .run import STEPPER_ORDER
+    from .model import STEPPER_ORDER, simulate
     coarse = simulate(plant, sensor, data)
     if coarse is None:
         return None

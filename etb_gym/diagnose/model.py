@@ -93,6 +93,7 @@ def closed_loop_evidence_d2(rec) -> float:
 
 
 RESIDUALS = ("auto", "replay", "observer")
+STEPPER_ORDER = 2    # the fixed-rate stepper's order of convergence (docs/model.md sec. 9): Richardson's p
 
 
 def prepare(recordings, nominal_supply_V: float, segment_min_s: float = SEGMENT_MIN_S,

@@ -20,7 +20,8 @@ from . import fit as F
 from .candidates import CANDIDATES, FITTED_CANDIDATES
 from .explain import Runner, select
 from .measurement import DEFAULT_RESOLUTION_DEG
-from .model import Data, SimulationFailed, Spec, angle_residuals_deg, prepare, replay_view, restart_view, simulate
+from .model import (STEPPER_ORDER, Data, SimulationFailed, Spec, angle_residuals_deg, prepare, replay_view,
+                    restart_view, simulate)
 from . import disturbance as D
 from .result import QUANT_K, RMS_K, SCHEMA, Result, current_mismatch, significant_mismatch, significant_residual  # noqa: F401,E501
 
@@ -57,7 +58,6 @@ def numerical_tolerance(spec: Spec, x, data: Data) -> None:
 
 SUBSTEP_CHOICES = (5, 10, 20, 40, 80)
 SUBSTEP_TOL = 0.5    # the model's own integration error must stay below this fraction of the noise floor
-STEPPER_ORDER = 2    # the fixed-rate stepper's order of convergence (docs/model.md sec. 9)
 
 
 def choose_substeps(base: Plant, data: Data, choices=SUBSTEP_CHOICES, frac: float = SUBSTEP_TOL) -> int:
