@@ -201,3 +201,18 @@ def test_a_candidate_whose_own_removal_costs_nothing_is_not_accepted(monkeypatch
     fits[()] = ("refit", 1.2, 10, None, 40, 1.0, None)
     assert accept(1.10) is None                           # refused, and the refit is no better than the current
     assert E.own_share(1.0, 1.2, 5.0) == 0.0              # no gain: no share
+
+
+def test_a_periodic_outside_description_far_worse_on_held_out_folds_does_not_replace_the_catalogue(monkeypatch):
+    # angle_dependent_friction@1 3B open s24: the family's table predicted the held-out folds at 5.99, a Fourier
+    # series at 1.89e4; the series removed the residual's periodic structure and was reported instead
+    from types import SimpleNamespace
+
+    from etb_gym.diagnose import refine as R
+    calls = []
+    monkeypatch.setattr(U, "removes_period", lambda *a, **k: calls.append(a) or True)
+    ps = {"significant": True, "z": 9.6, "period_deg": 6.5}
+    assert not R._period_decides(SimpleNamespace(heldout=1.89e4), 5.99, ps, 1.5, None, log=lambda m: None)
+    assert not calls
+    assert R._period_decides(SimpleNamespace(heldout=7.0), 5.99, ps, 1.5, None, log=lambda m: None)
+    assert not R._period_decides(SimpleNamespace(heldout=7.0), 5.99, None, 1.5, None, log=lambda m: None)
