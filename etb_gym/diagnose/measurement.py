@@ -17,6 +17,7 @@ Without rest runs it falls back to the second-difference estimate sigma^2 = E[(y
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -177,22 +178,31 @@ def quiet_sigma(y: np.ndarray, resolution: float = 0.0) -> float:
 
 
 def _ar_apply(x: np.ndarray, a: float) -> np.ndarray:
-    """R x for the AR(1) correlation matrix R_jk = a^|j-k| (a forward and a backward recursion, O(n))."""
+    """R x for the AR(1) correlation matrix R_jk = a^|j-k| (a forward and a backward recursion, O(n)), along
+    the first axis (a vector, or each column of a matrix)."""
     from scipy.signal import lfilter
     if a == 0.0:
         return x.copy()
-    f = lfilter([1.0], [1.0, -a], x)
-    b = lfilter([1.0], [1.0, -a], x[::-1])[::-1]
+    f = lfilter([1.0], [1.0, -a], x, axis=0)
+    b = lfilter([1.0], [1.0, -a], x[::-1], axis=0)[::-1]
     return f + b - x
+
+
+@functools.lru_cache(maxsize=64)
+def _trend_basis(n: int) -> np.ndarray:
+    """An orthonormal basis of the polynomials of degree REST_TREND_DEGREE over ``n`` samples (read only: cached,
+    since :func:`noise_colour`'s search asks for the same run lengths many times)."""
+    Q, _ = np.linalg.qr(np.vander(np.linspace(-1.0, 1.0, n), REST_TREND_DEGREE + 1))
+    Q.setflags(write=False)
+    return Q
 
 
 def _detrended_moments(n: int, a: float) -> tuple[float, float]:
     """(lag-0, lag-1) sums expected of unit-variance AR(1) noise of coefficient ``a`` after a least-squares
     polynomial of degree REST_TREND_DEGREE is removed from ``n`` samples: tr(M) and the sum of M's
     first off-diagonal, M = (I - H) R (I - H), H the polynomial's hat matrix. At a = 0, tr(M) = n - degree - 1."""
-    k = np.linspace(-1.0, 1.0, n)
-    Q, _ = np.linalg.qr(np.vander(k, REST_TREND_DEGREE + 1))
-    RQ = np.column_stack([_ar_apply(Q[:, j], a) for j in range(Q.shape[1])])
+    Q = _trend_basis(n)
+    RQ = _ar_apply(Q, a)
     QRQ = Q.T @ RQ
     c0 = n - float(np.trace(QRQ))                                   # tr(R) - 2 tr(H R) + tr(H R H)
     lag = lambda X, Y: float(np.sum(X[1:] * Y[:-1]))               # noqa: E731 -- sum_k X[k+1] Y[k]

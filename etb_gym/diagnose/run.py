@@ -554,8 +554,7 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
             # still checks the final model's current: result.current_counts)
             model = fr.spec.build(fr.x)
             return significant_mismatch(data, angle_residuals_deg(simulate(*model, data), data), *model, ref=ref0,
-                                        current_ref=cur0 if not fr.spec.candidates else None,
-                                        current=not fr.spec.candidates)
+                                        current_ref=cur0, current=not fr.spec.candidates)
 
         sig0 = significant(nominal)
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")

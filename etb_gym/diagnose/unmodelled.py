@@ -565,11 +565,13 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
     # table alone may leave out the family that is there (angle_dependent_friction@1 random s22: the current's
     # table dominated and only its families were tried; docs/diagnosis.md, round 22). The other tables' families
     # are tried only when none of the main table's predicts the held-out folds to the noise (HELD_AT_NOISE).
+    def tried(ids):
+        return [a for a in (_try_family(cur, c, data, log) for c in ids) if a is not None and math.isfinite(a.heldout)]
     first = [c for c in family_of_term.get(dom[0], ()) if c not in named]
     rest = [c for c in dict.fromkeys(c for t in dom[1:] for c in family_of_term.get(t, ())) if c not in named and c not in first]
-    alts = [a for a in (_try_family(cur, c, data, log) for c in first) if a is not None and math.isfinite(a.heldout)]
+    alts = tried(first)
     if rest and not any(a.heldout <= HELD_AT_NOISE for a in alts):
-        alts += [a for a in (_try_family(cur, c, data, log) for c in rest) if a is not None and math.isfinite(a.heldout)]
+        alts += tried(rest)
     if not alts:
         return None
     best = min(a.heldout for a in alts)
