@@ -305,7 +305,7 @@ SHIFT_MIN = 2.0       # a uniform shift: its mean change of the angle in each pa
 SHIFT_SPREAD = 0.25   # ... the parts' means within this share of each other, every sample's change within 2x of it
 
 
-def uniform_shift(delta: np.ndarray, phi: np.ndarray, inside: np.ndarray) -> dict | None:
+def uniform_shift(delta: np.ndarray, phi: np.ndarray, inside: np.ndarray, log=None) -> dict | None:
     """Is a local family's action in its region a uniform shift of the angle? ``delta``: its model's angle minus
     the current model's (noise units) per sample, ``phi`` the angle [rad], ``inside`` its region. The region's
     samples are split into parts where their angles lie PART_GAP_RAD apart (a stop's contact: the closed and the
@@ -313,20 +313,27 @@ def uniform_shift(delta: np.ndarray, phi: np.ndarray, inside: np.ndarray) -> dic
     noise units, of one sign, the means within SHIFT_SPREAD of each other and the samples' spread (std) within
     SHIFT_SPREAD of the mean too. That is what a reading offset does at every angle; a mechanical effect acting in
     physically different places (two stops are two parts) does not move them by one amount (a stop's compliance
-    follows the pressing torque). Returns the parts' means and spreads, or None."""
+    follows the pressing torque). Returns the parts' means and spreads, or None (``log``: told why)."""
     idx = np.flatnonzero(inside)
     if idx.size < 2 * PART_MIN:
+        if log:
+            log(f"  uniform shift: {idx.size} samples in the region, fewer than two parts of {PART_MIN}")
         return None
     order = idx[np.argsort(phi[idx])]
     cuts = np.flatnonzero(np.diff(phi[order]) > PART_GAP_RAD) + 1
     parts = [p for p in np.split(order, cuts) if p.size >= PART_MIN]
     if len(parts) < 2:
+        if log:
+            log(f"  uniform shift: {len(parts)} part(s) of at least {PART_MIN} samples in the region: no evidence")
         return None
     means = np.array([float(delta[p].mean()) for p in parts])
     spreads = np.array([float(delta[p].std()) for p in parts])
     ref = float(np.min(np.abs(means)))
     ok = (ref >= SHIFT_MIN and (np.all(means > 0) or np.all(means < 0))
           and float(means.max() - means.min()) <= SHIFT_SPREAD * ref and float(spreads.max()) <= SHIFT_SPREAD * ref)
+    if log and not ok:
+        log("  uniform shift: not one amount in every part: "
+            + ", ".join(f"{m:+.1f} (sd {sd:.1f}, {p.size} samples)" for m, sd, p in zip(means, spreads, parts)))
     return {"means": means.tolist(), "spreads": spreads.tolist(), "samples": [int(p.size) for p in parts]} if ok else None
 
 
@@ -404,7 +411,7 @@ def region_choice(ref: F.FitResult, screened: list, leader: str, data: Data, pas
         shift = None
         if local_leads:
             if z < bic_min and CANDIDATES[glob].component is None:      # a reading map: does L only shift it?
-                shift = uniform_shift(rl - r0, phi, inside)
+                shift = uniform_shift(rl - r0, phi, inside, log)
                 if shift is not None and uniform_shift(rg - r0, phi, inside) is None:
                     shift = None                                         # the map does not do the same there
             ok, winner, loser = z >= bic_min or shift is not None, glob, loc
