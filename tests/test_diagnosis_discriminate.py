@@ -281,9 +281,10 @@ def test_a_near_tie_goes_to_the_family_whose_region_holds_the_gain(monkeypatch, 
     assert (ev["winner"] if ev else None) == expect
     if ev:
         assert ev["rivals"] == ["sensor_offset_gain"] and ev["region"]["samples_inside"] == k
-    # a leader with a region of its own, or a rival that did not pass the held-out gain: no comparison
-    assert D.region_choice(fits["ref"], screened[::-1], "end_stop_compliance", None, passing, 10.0,
-                           log=lambda *a: None) is None
+    # the stop leading: the sensor map is named only when it explains significantly more outside the contact
+    ev = D.region_choice(fits["ref"], screened[::-1], "end_stop_compliance", None, passing, 10.0, log=lambda *a: None)
+    assert (ev["winner"] if ev else None) == ("sensor_offset_gain" if leader_out < local_out else None)
+    # a rival that did not pass the held-out gain: no comparison
     assert D.region_choice(fits["ref"], screened, "sensor_offset_gain", None, passing[:1], 10.0,
                            log=lambda *a: None) is None
 
@@ -311,3 +312,25 @@ def test_a_voltage_side_leader_that_spoils_the_current_yields_to_a_torque(monkey
     if ev:
         assert ev["rivals"] == ["supply_drop"] and "sensor_offset_gain" not in ev["current_ms"]
         assert "airflow_torque" not in ev["current_ms"]                # not significant
+
+
+@pytest.mark.parametrize("closed_shift, open_shift, spread, expect", [
+    (-5.4, -5.3, 0.4, True),     # measured: sensor_offset_gain@1 3B s24 open, the stop fit's change at both stops
+    (0.0, -5.3, 0.4, False),     # a stop moved at one stop only: a stop's own effect
+    (-5.4, -5.3, 3.0, False),    # the change follows something inside the contact (a compliance): not a shift
+    (-1.0, -1.1, 0.1, False),    # below SHIFT_MIN noise units
+])
+def test_a_uniform_shift_at_both_stops_is_a_reading_offset(closed_shift, open_shift, spread, expect):
+    """A local family's change of the angle that is one amount in every part of its region (both stops) is what a
+    reading offset does (the parts found by the gap between their angles)."""
+    rng = np.random.default_rng(0)
+    phi = np.radians(np.r_[np.full(200, -0.05), np.linspace(5.0, 85.0, 600), np.full(400, 90.1)])
+    inside = (phi < np.radians(0.0)) | (phi > np.radians(90.0))
+    delta = np.zeros(phi.size)
+    delta[:200] = closed_shift + spread * rng.standard_normal(200)
+    delta[800:] = open_shift + spread * rng.standard_normal(400)
+    got = D.uniform_shift(delta, phi, inside)
+    assert (got is not None) == expect
+    if expect:
+        assert got["samples"] == [200, 400]
+    assert D.uniform_shift(delta, phi, phi > np.radians(90.0)) is None      # one part alone: no evidence

@@ -299,6 +299,42 @@ REGION = {
     "backlash": lambda q, phi: np.abs(phi - q.limp_home_rad) <= q.play_rad + q.limp_home_compliance_rad,
 }
 REGION_SHARE = 0.5    # the local family's gain lies at least this much inside its region (it explains where it acts)
+PART_GAP_RAD = math.radians(10.0)   # parts of a region: its samples' angles split where they are this far apart
+PART_MIN = 30         # samples a part needs to count
+SHIFT_MIN = 2.0       # a uniform shift: its mean change of the angle in each part, noise units, at least this ...
+SHIFT_SPREAD = 0.25   # ... the parts' means within this share of each other, every sample's change within 2x of it
+
+
+def uniform_shift(delta: np.ndarray, phi: np.ndarray, inside: np.ndarray, log=None) -> dict | None:
+    """Is a local family's action in its region a uniform shift of the angle? ``delta``: its model's angle minus
+    the current model's (noise units) per sample, ``phi`` the angle [rad], ``inside`` its region. The region's
+    samples are split into parts where their angles lie PART_GAP_RAD apart (a stop's contact: the closed and the
+    open stop). A uniform shift: at least two parts of PART_MIN samples, each part's mean change at least SHIFT_MIN
+    noise units, of one sign, the means within SHIFT_SPREAD of each other and the samples' spread (std) within
+    SHIFT_SPREAD of the mean too. That is what a reading offset does at every angle; a mechanical effect acting in
+    physically different places (two stops are two parts) does not move them by one amount (a stop's compliance
+    follows the pressing torque). Returns the parts' means and spreads, or None (``log``: told why)."""
+    idx = np.flatnonzero(inside)
+    if idx.size < 2 * PART_MIN:
+        if log:
+            log(f"  uniform shift: {idx.size} samples in the region, fewer than two parts of {PART_MIN}")
+        return None
+    order = idx[np.argsort(phi[idx])]
+    cuts = np.flatnonzero(np.diff(phi[order]) > PART_GAP_RAD) + 1
+    parts = [p for p in np.split(order, cuts) if p.size >= PART_MIN]
+    if len(parts) < 2:
+        if log:
+            log(f"  uniform shift: {len(parts)} part(s) of at least {PART_MIN} samples in the region: no evidence")
+        return None
+    means = np.array([float(delta[p].mean()) for p in parts])
+    spreads = np.array([float(delta[p].std()) for p in parts])
+    ref = float(np.min(np.abs(means)))
+    ok = (ref >= SHIFT_MIN and (np.all(means > 0) or np.all(means < 0))
+          and float(means.max() - means.min()) <= SHIFT_SPREAD * ref and float(spreads.max()) <= SHIFT_SPREAD * ref)
+    if log and not ok:
+        log("  uniform shift: not one amount in every part: "
+            + ", ".join(f"{m:+.1f} (sd {sd:.1f}, {p.size} samples)" for m, sd, p in zip(means, spreads, parts)))
+    return {"means": means.tolist(), "spreads": spreads.tolist(), "samples": [int(p.size) for p in parts]} if ok else None
 
 
 def effect_params(fr: F.FitResult, cid: str):
@@ -323,66 +359,84 @@ def _failed(r: np.ndarray) -> bool:
 
 def region_choice(ref: F.FitResult, screened: list, leader: str, data: Data, passing: list[str], bic_min: float,
                   log=print) -> dict | None:
-    """A near tie between a ``leader`` that acts at every angle and a family with a region of action (REGION):
-    where does the gain live? ``passing``: the candidates that passed the held-out gain; a rival is close when it
-    passes too and its screening RSS drop is at least MARGIN_SHARE of the leader's.
+    """A near tie between a family that acts at every angle (G) and a family with a region of action (L, REGION):
+    where does the gain live? Either may lead. ``passing``: the candidates that passed the held-out gain; a rival
+    is close when it passes too and its screening RSS drop is at least MARGIN_SHARE of the leader's.
 
-    For the rival L (its region M, on its own fitted model's angle) and the leader G, both screening fits against
-    the current model's refit ``ref`` (angle residuals only):
-      - L explains where it acts: at least REGION_SHARE of L's RSS drop lies inside M;
-      - G explains nothing outside M that L does not: outside M, G's RSS is not significantly below L's,
-        m_out / tau ln(RSS_out(L) / RSS_out(G)) < ``bic_min`` (tau: G's residual's integrated time).
-    Then L is named: the physics that acts only there accounts for all the data say, and the everywhere-acting
-    leader's claim about the other angles is not supported. A leader whose gain extends outside M (a real sensor
-    offset shifts every reading, at rest and in motion) stands. (Outside M, L still gains through what its torque
-    did to the motion that follows: a replay carries a contact's timing on; both fits carry that alike, which is
-    why the comparison is L against G outside M and not G's outside gain against zero.)
+    For L (its region M, on its own fitted model's angle) and G, both screening fits against the current model's
+    refit ``ref`` (angle residuals only), with z = m_out / tau ln(RSS_out(L) / RSS_out(G)) outside M (tau: G's
+    residual's integrated time):
+      - G leads: L is named when it explains where it acts (at least REGION_SHARE of L's RSS drop lies inside
+        M) and G explains nothing outside M that L does not (z < ``bic_min``): the physics that acts only there
+        accounts for all the data say, and G's claim about the other angles is not supported;
+      - L leads: G is named when it explains significantly more outside M than L does (z >= ``bic_min``): what
+        the data say away from L's region (a sensor map shifts the reading at rest at limp-home and in free
+        motion, where a stop's compliance acts on nothing) L cannot account for.
+    Otherwise the leader stands. (Outside M, L still gains through what its torque did to the motion that
+    follows: a replay carries a contact's timing on; both fits carry that alike, which is why the comparison is
+    L against G outside M and not G's outside gain against zero.)
     Measured: end_stop_compliance@2, random nameplate, open loop, seed 2 (a soft exponential bumper before the
     open stop): sensor map dBIC -182, stop compliance -160, both +85 % held-out; 76 % of the stop's drop inside
     its contact region, outside it RSS 7501 (sensor map) against 7551 (stop) over 5668 samples."""
-    if leader in REGION:
-        return None
     rss = {c: fr.rss for _, c, fr in screened}
     fits = {c: fr for _, c, fr in screened}
     if leader not in rss or ref.rss - rss[leader] <= 0:
         return None
-    close = [c for c in passing if c in REGION and c != leader and c in rss
+    local_leads = leader in REGION
+    close = [c for c in passing if c != leader and c in rss and (c in REGION) != local_leads
              and ref.rss - rss[c] >= MARGIN_SHARE * (ref.rss - rss[leader])]
     if not close:
         return None
     r0, _ = angle_parts(ref, data)
-    rg, _ = angle_parts(fits[leader], data)
-    if _failed(r0) or _failed(rg):
+    rl_cache: dict = {}
+    if _failed(r0):
         return None
-    tau = max(fits[leader].tau_int, 1.0)
     for c in close:
-        q = effect_params(fits[c], c)
+        loc, glob = (leader, c) if local_leads else (c, leader)
+        q = effect_params(fits[loc], loc)
         if q is None:
             continue
-        rl, phi = angle_parts(fits[c], data)
-        if _failed(rl):
+        rl, phi = angle_parts(fits[loc], data)
+        rg, _ = rl_cache[glob] if glob in rl_cache else rl_cache.setdefault(glob, angle_parts(fits[glob], data))
+        if _failed(rl) or _failed(rg):
             continue
-        inside = np.asarray(REGION[c](q, phi), bool)
+        inside = np.asarray(REGION[loc](q, phi), bool)
         drop = r0 ** 2 - rl ** 2
         total = float(drop.sum())
         share = float(drop[inside].sum()) / total if total > 0 else 0.0
         out_l, out_g = float(rl[~inside] @ rl[~inside]), float(rg[~inside] @ rg[~inside])
+        tau = max(fits[glob].tau_int, 1.0)
         m_out = int(np.count_nonzero(~inside)) / tau
         z = m_out * math.log(max(out_l, 1e-300) / max(out_g, 1e-300)) if m_out > 0 else 0.0
-        ok = share >= REGION_SHARE and z < bic_min
-        log(f"  where the gain lives: {c} {share:.0%} of its drop inside its region ({int(inside.sum())} samples); "
-            f"outside, RSS {leader} {out_g:.0f} against {c} {out_l:.0f} (dBIC-like {z:+.1f}) -> "
-            + (c if ok else f"{leader} stands"))
+        shift = None
+        if local_leads:
+            if z < bic_min and CANDIDATES[glob].component is None:      # a reading map: does L only shift it?
+                shift = uniform_shift(rl - r0, phi, inside, log)
+                if shift is not None and uniform_shift(rg - r0, phi, inside) is None:
+                    shift = None                                         # the map does not do the same there
+            ok, winner, loser = z >= bic_min or shift is not None, glob, loc
+        else:
+            ok, winner, loser = share >= REGION_SHARE and z < bic_min, loc, glob
+        log(f"  where the gain lives: {loc} {share:.0%} of its drop inside its region ({int(inside.sum())} samples); "
+            f"outside, RSS {glob} {out_g:.0f} against {loc} {out_l:.0f} (dBIC-like {z:+.1f}) -> "
+            + (f"{loc} moves the angle by one amount in each part of its region "
+               + ", ".join(f"{m:+.1f} (sd {sd:.1f}, {k} samples)" for m, sd, k in
+                           zip(shift["means"], shift["spreads"], shift["samples"])) + ": a shift of the reading; "
+               if shift else "")
+            + (winner if ok else f"{leader} stands"))
         if ok:
-            return {"rivals": [leader], "winner": c,
+            rule = (f"a near tie between a family acting at every angle and one with a region of action: when at "
+                    f"least {REGION_SHARE:.0%} of the local family's gain lies inside its region and the other "
+                    "explains nothing outside it that the local one does not, the local one is named; when the "
+                    "other explains significantly more outside that region, it is; a reading map is named too when "
+                    "the local family's fit only shifts the angle by one amount in every part of its region (both "
+                    "stops), as the map does")
+            return {"rivals": [loser], "winner": winner,
                     "region": {"share_inside": share, "samples_inside": int(inside.sum()),
-                               "rss_outside": {leader: out_g, c: out_l}, "outside_dbic": z},
-                    "signature": {leader: SIGNATURE.get(leader, "acts at every angle"),
-                                  c: REGION_SIGNATURE[c]},
-                    "rule": "a near tie between a family acting at every angle and one with a region of action: "
-                            f"when at least {REGION_SHARE:.0%} of the local family's gain lies inside its region and "
-                            "the other explains nothing outside it that the local one does not, the local one is "
-                            "named"}
+                               "rss_outside": {glob: out_g, loc: out_l}, "outside_dbic": z,
+                               **({"uniform_shift": shift} if shift else {})},
+                    "signature": {glob: SIGNATURE.get(glob, "acts at every angle"), loc: REGION_SIGNATURE[loc]},
+                    "rule": rule}
     return None
 
 
