@@ -161,4 +161,9 @@ def continue_tables(final: F.FitResult, shaped, data: Data, note: dict | None = 
     if note is not None:
         note["beyond_visited"] = {"tables": edited, "replay_cost_before": c0, "replay_cost_after": c1,
                                   "margin": margin, "kept": kept}
-    return dataclasses.replace(final, x=x) if kept else final
+    if not kept:
+        return final
+    for ref in shaped.refinements:        # the report draws the exported table
+        if any(e["table"] == ref.term.id for e in edited) and ref.fit.spec.params == final.spec.params:
+            ref.fit = dataclasses.replace(ref.fit, x=x)
+    return dataclasses.replace(final, x=x)
