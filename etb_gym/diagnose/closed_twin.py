@@ -82,7 +82,8 @@ def check_tables(formula: F.FitResult, final: F.FitResult, steps_before: list, s
 
 def _continued(total: np.ndarray, prof: np.ndarray, grid: np.ndarray, seen: np.ndarray, lh: float) -> np.ndarray:
     """The family's total (formula ``prof`` + table) on ``grid`` with the knots beyond the visited ones
-    (``seen``: indices, increasing) continued from the edge along the slope of the last visited interval, but no
+    (``seen``: indices, increasing) continued from the edge along the slope over the last two visited intervals
+    (one where only two knots are visited: the edge knot is seen by the data on one side only), but no
     further than the family's formula goes from the edge (and held where the slope and the formula part ways):
     between the hold and the formula's own continuation, the two the table could do before. A continuation does
     not cross limp-home (``lh``, rad; nan: none): the spring's contact changes the regime there, so the knots
@@ -91,8 +92,8 @@ def _continued(total: np.ndarray, prof: np.ndarray, grid: np.ndarray, seen: np.n
     n = grid.size
     for side in (1, -1):
         e = seen[-1] if side == 1 else seen[0]
-        f = e - side                                   # the visited knot next to the edge
-        if not (0 <= f < n) or f not in seen:
+        f = next((e - m * side for m in (2, 1) if 0 <= e - m * side < n and e - m * side in seen), None)
+        if f is None:
             continue
         slope = (total[e] - total[f]) / (grid[e] - grid[f])
         k = e + side
@@ -117,9 +118,9 @@ def continue_tables(final: F.FitResult, shaped, data: Data, note: dict | None = 
     Beyond the visited knots the table held the family's total at its value at the last one (shapes.hold_rows):
     a total that was still changing at the edge stops there. Measured (docs/diagnosis.md, round 23):
     shaft_flux_loss@2 random seed 25, trained 3.7-64.6 deg, held-out to 83 deg: the total held at -0.0108 N m/A
-    from 67.5 deg on, the held-out twin 22.8x the noise; the edge's slope continued 3.35x; the formula's own
-    continuation (exponent at its bound) 79.7x. The knots are edited after the fits, which never saw them: the
-    fitted model inside the visited range is unchanged. ``note`` gets the figures (report.json
+    from 67.5 deg on, the held-out twin 22.8x the noise; the slope over the last visited interval continued
+    3.35x, over the last two 2.72x; the formula's own continuation (exponent at its bound) 79.7x. The knots are
+    edited after the fits, which never saw them: the fitted model inside the visited range is unchanged. ``note`` gets the figures (report.json
     ``replay_tables.beyond_visited``)."""
     from .shapes import VISIT_MIN_S, _formula_component, formula_profile, visit_time_s
     if shaped is None or not data.recs or not all(rd.residual == "observer" for rd in data.recs):
