@@ -82,8 +82,9 @@ def check_tables(formula: F.FitResult, final: F.FitResult, steps_before: list, s
 
 def _continued(total: np.ndarray, prof: np.ndarray, grid: np.ndarray, seen: np.ndarray, lh: float) -> np.ndarray:
     """The family's total (formula ``prof`` + table) on ``grid`` with the knots beyond the visited ones
-    (``seen``: indices, increasing) continued from the edge along the slope over the last two visited intervals
-    (one where only two knots are visited: the edge knot is seen by the data on one side only), but no
+    (``seen``: indices, increasing) continued from the edge along the slope of the visited interval next to the
+    edge's (both its knots have data on either side; the edge knot only on one; where only two knots are visited,
+    the edge's interval), but no
     further than the family's formula goes from the edge (and held where the slope and the formula part ways):
     between the hold and the formula's own continuation, the two the table could do before. A continuation does
     not cross limp-home (``lh``, rad; nan: none): the spring's contact changes the regime there, so the knots
@@ -92,10 +93,10 @@ def _continued(total: np.ndarray, prof: np.ndarray, grid: np.ndarray, seen: np.n
     n = grid.size
     for side in (1, -1):
         e = seen[-1] if side == 1 else seen[0]
-        f = next((e - m * side for m in (2, 1) if 0 <= e - m * side < n and e - m * side in seen), None)
-        if f is None:
+        a, b = (e - 2 * side, e - side) if e - 2 * side in seen else (e - side, e)
+        if not (0 <= min(a, b) and max(a, b) < n) or a not in seen or b not in seen:
             continue
-        slope = (total[e] - total[f]) / (grid[e] - grid[f])
+        slope = (total[b] - total[a]) / (grid[b] - grid[a])
         k = e + side
         while 0 <= k < n:
             if math.isfinite(lh) and (grid[k] - lh) * (grid[e] - lh) < 0:
@@ -118,8 +119,8 @@ def continue_tables(final: F.FitResult, shaped, data: Data, note: dict | None = 
     Beyond the visited knots the table held the family's total at its value at the last one (shapes.hold_rows):
     a total that was still changing at the edge stops there. Measured (docs/diagnosis.md, round 23):
     shaft_flux_loss@2 random seed 25, trained 3.7-64.6 deg, held-out to 83 deg: the total held at -0.0108 N m/A
-    from 67.5 deg on, the held-out twin 22.8x the noise; the slope over the last visited interval continued
-    3.35x, over the last two 2.72x; the formula's own continuation (exponent at its bound) 79.7x. The knots are
+    from 67.5 deg on, the held-out twin 22.8x the noise; the slope of the interval next to the edge's continued
+    2.71x (of the edge's own 3.35x); the formula's own continuation (exponent at its bound) 79.7x. The knots are
     edited after the fits, which never saw them: the fitted model inside the visited range is unchanged. ``note`` gets the figures (report.json
     ``replay_tables.beyond_visited``)."""
     from .shapes import VISIT_MIN_S, _formula_component, formula_profile, visit_time_s
