@@ -193,6 +193,32 @@ def test_a_periodic_torque_becomes_a_fourier_series_that_holds_beyond_the_record
         PeriodicAngleTorque(cos_Nm=(0.0, 0.0), sin_Nm=(0.0, 0.0), cos_Nm_per_A=(0.0, 0.0), sin_Nm_per_A=(0.0,))
 
 
+def test_a_series_grown_from_a_smaller_one_starts_from_its_fitted_nominal_parameters(monkeypatch):
+    """unmodelled.fit_series(grown_from=s): more harmonics, a multiple or a fraction of a fitted series' period
+    start from that series' fitted nominal parameters as well as its coefficients, i.e. at the smaller series'
+    optimum. From the calibrated nominal's parameters instead, a few Gauss-Newton steps ended 6 harmonics at
+    2.7x the RSS of 3 on a seed-24 detent (a nested model), and the twin kept 3 harmonics: 52x the noise on the
+    held-out recording, 7.4x with the grown start. Without ``grown_from`` the start stays the nominal's."""
+    from types import SimpleNamespace
+    rec = make_recording(make_plant("3B"), np.random.default_rng(4), duration_s=0.3)
+    data = prepare([rec], 12.0)
+    spec = Spec(make_plant("3B"))
+    n = len(spec.params)
+    nominal = F.FitResult(spec, np.full(n, 0.1), 1.0, 10, None, 0)
+    grown = SimpleNamespace(fit=SimpleNamespace(x=np.concatenate([np.linspace(-0.3, 0.3, n), np.ones(7)])))
+    starts = []
+
+    def fake_fit(pb, data, iters):
+        starts.append(np.asarray(pb.x, float).copy())
+        raise ValueError("stop after the start")
+    monkeypatch.setattr(U, "fit_penalized", fake_fit)
+    quiet = lambda *a: None  # noqa: E731
+    assert U.fit_series(nominal, data, 9.0, ("angle",), 6, {"cos_Nm_1": 0.01}, quiet, grown_from=grown) is None
+    assert U.fit_series(nominal, data, 9.0, ("angle",), 6, {"cos_Nm_1": 0.01}, quiet) is None
+    np.testing.assert_array_equal(starts[0][:n], grown.fit.x[:n])
+    np.testing.assert_array_equal(starts[1][:n], nominal.x)
+
+
 @pytest.mark.parametrize("start", [7.5, 15.0])
 def test_a_period_locked_on_the_second_harmonic_is_doubled_and_a_true_period_is_not(start):
     """unmodelled.subharmonic: narrow detent pulses (a strong 2nd harmonic) of period 15 deg over a short swept
