@@ -130,6 +130,7 @@ EFFECTS = {
     "effect.coil_heating": {},
     "effect.current_inductance_map": {"current_A": (-3.0, 0.0, 3.0), "delta_H": (-4e-4, 0.0, -2e-4)},
     "effect.current_torque_constant_map": {"current_A": (-3.0, 0.0, 3.0), "delta_Nm_per_A": (-0.003, 0.0, 0.004)},
+    "effect.current_torque_map": {"current_A": (-3.0, 0.0, 3.0), "delta_Nm_per_A": (0.001, 0.0, 0.004)},
     "effect.current_voltage_map": {"current_A": (-3.0, -0.5, 0.5, 3.0), "drop_V": (-0.4, -0.1, 0.15, 0.3)},
     "effect.end_stop_compliance": {"stiffness_Nm_per_rad": 700.0},
     "effect.inductance_saturation": {"inductance_drop_H": 5e-4},

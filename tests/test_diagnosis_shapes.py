@@ -31,7 +31,8 @@ def _maps():
                                 closing_Nm=(0.04, 0.02, 0.01, 0.0)),
             fx.CurrentVoltageMap(current_A=(-5.0, -1.0, 0.0, 1.0, 5.0), drop_V=(-0.6, -0.3, 0.0, 0.3, 0.6)),
             fx.CurrentTorqueConstantMap(current_A=(-5.0, 0.0, 5.0), delta_Nm_per_A=(-0.01, 0.0, -0.02)),
-            fx.CurrentInductanceMap(current_A=(-5.0, 0.0, 5.0), delta_H=(-0.003, 0.0, -0.002))]
+            fx.CurrentInductanceMap(current_A=(-5.0, 0.0, 5.0), delta_H=(-0.003, 0.0, -0.002)),
+            fx.CurrentTorqueMap(current_A=(-5.0, -0.1, 0.1, 5.0), delta_Nm_per_A=(0.002, 0.002, 0.01, 0.01))]
 
 
 def test_table_lookup_is_numpy_interp_clamped():
@@ -43,8 +44,9 @@ def test_table_lookup_is_numpy_interp_clamped():
         assert table_lookup(x, q, 1, g.size, 1 + g.size) == pytest.approx(np.interp(x, g, v), abs=1e-12)
 
 
-@pytest.mark.parametrize("k", range(7), ids=["angle_torque", "torque_constant", "angle_friction", "speed_friction",
-                                              "current_voltage", "current_torque_constant", "current_inductance"])
+@pytest.mark.parametrize("k", range(8), ids=["angle_torque", "torque_constant", "angle_friction", "speed_friction",
+                                              "current_voltage", "current_torque_constant", "current_inductance",
+                                              "current_torque"])
 def test_map_components_act_round_trip_and_load_in_gym(k, tmp_path):
     m = _maps()[k]
     nominal = make_plant("3B").simulate(duty=DUTY).angle_deg

@@ -33,3 +33,23 @@ def test_family_current_tables_use_the_shared_grid_and_the_generic_one_does_not(
         assert np.max(np.diff(inside)) < 1.0, (fam, g)
     gen = S.current_grid(data, base, 7)                                      # unmodelled_voltage: as before
     assert np.max(np.diff(gen[(gen > 0) & (gen <= cur.max() + 1e-9)])) > 1.5
+
+
+def test_a_torque_constant_error_gets_a_current_table_for_the_torque_alone():
+    """Round 23: besides the current table whose back-EMF follows it, a torque-constant error is refined by a
+    table of the torque per ampere alone (effect.current_torque_map: back-EMF unchanged)."""
+    from etb_gym import make_plant
+    from etb_gym.components import effects as fx
+    from etb_gym.diagnose.model import prepare
+    from etb_gym.recordings import Recording
+    m = fx.CurrentTorqueMap(current_A=(-2.0, 0.0, 2.0), delta_Nm_per_A=(0.001, 0.0, 0.004))
+    tq, emf, _ = m.kernel(0.0, 0.5, 30.0, 2.0, 5.0, np.zeros(1), m.param_vector(), np.zeros(1))
+    assert np.isclose(tq, 0.008) and emf == 0.0                    # torque dk(i) i, no back-EMF at 30 rad/s
+    t = np.arange(2000) * 1e-3
+    cur = 2.0 * np.sin(2 * np.pi * t)
+    rec = Recording(name="r.csv", t_s=t, voltage_V=2.0 * cur, angle_deg=np.full(t.size, 40.0), current_A=cur,
+                    supply_V=None)
+    terms = S.family_terms("torque_constant_error", make_plant("3B"), prepare([rec], 12.0))
+    kinds = [t.cls for t in terms]
+    assert fx.CurrentTorqueConstantMap in kinds and fx.CurrentTorqueMap in kinds
+    assert np.allclose(terms[-1].grid, terms[-2].grid)

@@ -293,6 +293,28 @@ class CurrentTorqueConstantMap(_MapEffect):
 
 
 @dataclasses.dataclass(frozen=True)
+class CurrentTorqueMapParams(_MapParams):
+    current_A: tuple = (-1.0, 1.0)                   # signed knots
+    delta_Nm_per_A: tuple = (0.0, 0.0)               # dk(i): torque dk(i) i only; the back-EMF constant unchanged
+    grid, values = "current_A", ("delta_Nm_per_A",)
+
+
+@kernel
+def current_torque_map_kernel(t, phi, omega, i, u, s, p, ds):
+    return map_value(i, p, 0) * i, 0.0, 0.0
+
+
+class CurrentTorqueMap(_MapEffect):
+    """The torque per ampere over current, the back-EMF left to the motor's constant: a torque constant that
+    depends on the current's direction or size (armature reaction, saturation by the coil's own field) while the
+    voltage the turning magnet induces does not (it is there with no current)."""
+    effect_id = "current_torque_map"
+    Params = CurrentTorqueMapParams
+    kernel = staticmethod(current_torque_map_kernel)
+    description = "torque per ampere over current (back-EMF unchanged), a table learned from the data"
+
+
+@dataclasses.dataclass(frozen=True)
 class CurrentInductanceMapParams(_MapParams):
     current_A: tuple = (-1.0, 1.0)                   # signed knots
     delta_H: tuple = (0.0, 0.0)                      # dL(i): inductance added to the coil loop
@@ -345,4 +367,5 @@ class SensorMap:
 
 
 MAP_EFFECTS = {c.effect_id: c for c in (AngleTorqueMap, TorqueConstantMap, AngleFrictionMap, SpeedFrictionMap,
-                                        CurrentVoltageMap, CurrentTorqueConstantMap, CurrentInductanceMap)}
+                                        CurrentVoltageMap, CurrentTorqueConstantMap, CurrentTorqueMap,
+                                        CurrentInductanceMap)}
