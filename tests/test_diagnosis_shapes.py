@@ -485,7 +485,8 @@ def test_a_table_period_that_is_a_multiple_of_the_residuals_is_flagged():
 def test_a_series_whose_energy_is_in_every_mth_harmonic_repeats_with_p_over_m():
     """unmodelled.reductions: a 3-harmonic series of 28.3 deg with its energy in the 2nd harmonic is a 1-harmonic
     series of 14.15 deg (round 21: H need not be a multiple of m); a 6-harmonic one in harmonics 3 and 6 repeats
-    with P / 3 (2 harmonics); energy in the 1st harmonic, or one part off the multiples, gives none."""
+    with P / 3 (2 harmonics); energy in the 1st harmonic, or one part off the multiples, gives none, unless that
+    part holds less than REDUCE_SHARE of the torque energy (the part per ampere weighed by the model's RMS current)."""
     c = {"cos_Nm_per_A_1": -4.4e-5, "cos_Nm_per_A_2": -4.04e-3, "cos_Nm_per_A_3": 2.0e-4,
          "sin_Nm_per_A_1": -2.7e-4, "sin_Nm_per_A_2": 8.22e-3, "sin_Nm_per_A_3": 3.8e-4}
     assert U.reductions(c, 3, 28.3, ("current",)) == [(2, 1, {"cos_Nm_per_A_1": -4.04e-3, "sin_Nm_per_A_1": 8.22e-3})]
@@ -496,6 +497,14 @@ def test_a_series_whose_energy_is_in_every_mth_harmonic_repeats_with_p_over_m():
     assert U.reductions({"cos_Nm_1": 0.01, "cos_Nm_2": 0.001, "cos_Nm_3": 0.0}, 3, 28.3, ("angle",)) == []
     both = {**c, "cos_Nm_1": 0.01, "cos_Nm_2": 0.0, "cos_Nm_3": 0.0}
     assert U.reductions(both, 3, 28.3, ("angle", "current")) == []
+    # a part too small to hold the period does not veto it (seed-26 current ripple, 3B open: 0.0071 N m/A in the
+    # current part's 2nd harmonic, 0.00058 N m in the angle part's 1st and 3rd), at the model's RMS current of 1 A;
+    # at 0.05 A the current part is the small one and the angle part's period stands
+    small = {**c, "cos_Nm_1": -5.5e-4, "sin_Nm_1": -3.3e-5, "cos_Nm_2": 1.5e-5, "sin_Nm_2": 1.1e-4,
+             "cos_Nm_3": 1.9e-4, "sin_Nm_3": 3.3e-5}
+    (m, H, start), = U.reductions(small, 3, 34.6, ("angle", "current"), current_rms_A=1.0)
+    assert (m, H) == (2, 1) and start["cos_Nm_per_A_1"] == -4.04e-3 and start["cos_Nm_1"] == 1.5e-5
+    assert U.reductions(small, 3, 34.6, ("angle", "current"), current_rms_A=0.05) == []
     assert U.reductions(c, 3, 10.0, ("current",)) == []          # P / 2 below the shortest period tried
 
 

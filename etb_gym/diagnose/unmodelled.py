@@ -895,10 +895,15 @@ REDUCE_SHARE = 0.05     # a series whose harmonics off the multiples of m hold a
 REDUCE_BY = (3, 2)      # ... repeats with P / m (tried in this order)
 
 
-def reductions(c: dict, harmonics: int, period_deg: float, parts: tuple) -> list:
+def reductions(c: dict, harmonics: int, period_deg: float, parts: tuple, current_rms_A: float = 1.0) -> list:
     """The shorter periods P / m (m of REDUCE_BY, in that order) that a series of ``harmonics`` harmonics with
     coefficients ``c`` (field_h -> value, :func:`_coefficients`) and period ``period_deg`` repeats with: in every
-    part the harmonics that are not multiples of m hold at most REDUCE_SHARE of the energy. Each as
+    part that carries at least REDUCE_SHARE of the series' torque energy (the part per ampere weighed by
+    ``current_rms_A``, the model's RMS current) the harmonics that are not multiples of m hold at most
+    REDUCE_SHARE of that part's energy. A part below that share does not hold the period: a current ripple of
+    17.35 deg fitted as a series of 34.63 deg with both parts (seed-26 3B open) carried 0.0069 N m/A in the
+    current part's 2nd harmonic and a 0.00055 N m angle part in harmonics 1 and 3, and was reported at twice its
+    period. Each as
     (m, H // m harmonics, start coefficients of the P / m series: harmonic h of P is harmonic h / m of P / m).
     H need not be a multiple of m: a 3-harmonic series of 28.3 deg whose energy is all in its 2nd harmonic is a
     1-harmonic series of 14.1 deg (round 21: a 14.13 deg current ripple reported at 2x its period)."""
@@ -907,11 +912,16 @@ def reductions(c: dict, harmonics: int, period_deg: float, parts: tuple) -> list
     for m in REDUCE_BY:
         if H < m or period_deg / m < PERIODS_DEG[0]:
             continue
-        ok = True
-        for part in parts:
-            e = np.array([sum(c.get(f"{f}_{h}", 0.0) ** 2 for f in SERIES_PARTS[part]) for h in range(1, H + 1)])
+        energy = {part: np.array([sum(c.get(f"{f}_{h}", 0.0) ** 2 for f in SERIES_PARTS[part])
+                                  for h in range(1, H + 1)]) * (current_rms_A ** 2 if part == "current" else 1.0)
+                  for part in parts}
+        total = sum(float(e.sum()) for e in energy.values())
+        ok = total > 0
+        for e in energy.values():
+            if float(e.sum()) < REDUCE_SHARE * total:        # too small a part to hold the period
+                continue
             off = float(e[[h % m != 0 for h in range(1, H + 1)]].sum())
-            ok &= e.sum() > 0 and off <= REDUCE_SHARE * float(e.sum())
+            ok &= off <= REDUCE_SHARE * float(e.sum())
         if not ok:
             continue
         start = {}
@@ -923,6 +933,21 @@ def reductions(c: dict, harmonics: int, period_deg: float, parts: tuple) -> list
     return out
 
 
+def model_current_rms(s: Series, data: Data) -> float:
+    """RMS of the current [A] the series' model draws on the recordings (the scale of a torque per ampere);
+    1 A when it cannot be simulated or draws none."""
+    if "current" not in s.parts:
+        return 1.0
+    plant, sensor = s.fit.spec.build(s.fit.x)
+    sim = simulate(plant, sensor, data)
+    if sim is None:
+        return 1.0
+    cur = np.concatenate([np.asarray(i, float) for _, i in sim if i is not None] or [np.zeros(0)])
+    cur = cur[np.isfinite(cur)]
+    rms = float(np.sqrt(np.mean(cur ** 2))) if cur.size else 0.0
+    return rms if rms > 0 else 1.0
+
+
 def reduced(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series | None:
     """The series' own shortest period (:func:`reductions`): the series of P / m, started from the multiples'
     coefficients, is fitted with that period held and with it free (output error is steep in the period: a free
@@ -931,7 +956,7 @@ def reduced(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series | 
     period the tables had at 1.5 times the torque's ends on 3 times it (a 56.1 deg series, all its energy in
     harmonics 3, 6, 9, 12, for an 18.7 deg detent). None when no reduction is kept."""
     P = math.degrees(s.component.params.period_rad)
-    for m, H, start in reductions(_coefficients(s), s.harmonics, P, s.parts):
+    for m, H, start in reductions(_coefficients(s), s.harmonics, P, s.parts, model_current_rms(s, data)):
         tries = []
         for free in (False, True):     # P / m as found with the longer period, and free
             r = fit_series(nominal, data, P / m, s.parts, H, start, log, period_free=free, heldout=False, grown_from=s)
