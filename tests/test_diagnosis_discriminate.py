@@ -176,6 +176,21 @@ def _sfit(x=None):
     return type("Fit", (), {"x": x})()
 
 
+def test_a_torque_constant_error_leader_has_the_angle_torque_families_as_rivals():
+    """discriminate.rivals: a torque-constant error refined over angle is a current-proportional torque table
+    (the shaft flux loss's, one table kind), so when it leads, the friction and angle-only families close to it
+    are compared by their tables (round 23: angle_dependent_friction@1 random open s26 was named
+    torque_constant_error, its twin 206x; friction table held-out 45.5 against 87.8). The current-proportional
+    pair alone is nothing to tell apart, and a torque-constant error is still no direction family."""
+    screened = [(-54, "torque_constant_error", _Fit(40.0)), (-31, "angle_dependent_friction", _Fit(65.0)),
+                (-26, "shaft_flux_loss", _Fit(70.0))]
+    assert D.rivals(screened, 100.0, "torque_constant_error") == ["torque_constant_error",
+                                                                  "angle_dependent_friction", "shaft_flux_loss"]
+    assert D.table_kind("torque_constant_error") == D.table_kind("shaft_flux_loss")
+    assert D.rivals([screened[0], screened[2]], 100.0, "torque_constant_error") == []
+    assert D.direction_rivals(screened, "torque_constant_error", 10.0) == []
+
+
 def test_friction_and_angle_only_torques_are_rivals_when_the_other_class_screened_significant():
     """A friction whose curve is not its candidate's formula screens far behind an angle-only torque (a
     rational Stribeck curve: dBIC -13 against -81 for airflow); whether the torque turns with the motion is what

@@ -31,8 +31,9 @@ from . import shapes as S
 from .candidates import CANDIDATES
 from .model import Data
 
-GROUP = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry")
+GROUP = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry", "torque_constant_error")
 SIGNATURE = {"shaft_flux_loss": "proportional to the current",
+             "torque_constant_error": "proportional to the current",
              "angle_dependent_friction": "opposes the motion (sign of the speed)",
              "stribeck_friction": "opposes the motion, a function of the speed",
              "airflow_torque": "a function of the opening alone",
@@ -42,7 +43,8 @@ SIGNATURE = {"shaft_flux_loss": "proportional to the current",
              "inductance_saturation": "an inductance falling with the current (the current's transients)",
              "sensor_offset_gain": "a sensor map: shifts the reading at every angle"}
 AGAINST_MOTION = ("angle_dependent_friction", "stribeck_friction")   # a torque whose sign follows the motion
-DIRECTION_GROUP = GROUP + ("stribeck_friction",)      # told apart by direction (open loops, direction_rivals)
+DIRECTION_GROUP = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry",
+                   "stribeck_friction")      # told apart by direction (open loops, direction_rivals)
 MARGIN_SHARE = 0.5    # a rival is close when its screening RSS drop is at least this share of the leader's
 GN_ITER = 2           # Gauss-Newton iterations of each family's table fit
 
@@ -83,7 +85,7 @@ def direction_rivals(screened: list, leader: str, bic_min: float) -> list[str]:
 
 
 def table_kind(cid: str) -> str:
-    return {"airflow_torque": "angle", "spring_asymmetry": "angle"}.get(cid, cid)
+    return {"airflow_torque": "angle", "spring_asymmetry": "angle", "torque_constant_error": "shaft_flux_loss"}.get(cid, cid)
 
 
 def table_heldout(cur: F.FitResult, cid: str, data: Data, tables: dict | None = None) -> float:
