@@ -84,8 +84,7 @@ def _continued(total: np.ndarray, prof: np.ndarray, grid: np.ndarray, seen: np.n
     """The family's total (formula ``prof`` + table) on ``grid`` with the knots beyond the visited ones
     (``seen``: indices, increasing) continued from the edge along the slope of the visited interval next to the
     edge's (both its knots have data on either side; the edge knot only on one; where only two knots are visited,
-    the edge's interval), but no
-    further than the family's formula goes from the edge (and held where the slope and the formula part ways):
+    the edge's interval), but no further than the family's formula goes from the edge (and held where the slope and the formula part ways):
     between the hold and the formula's own continuation, the two the table could do before. A continuation does
     not cross limp-home (``lh``, rad; nan: none): the spring's contact changes the regime there, so the knots
     beyond it are held at the last continued value."""

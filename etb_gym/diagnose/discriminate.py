@@ -31,7 +31,8 @@ from . import shapes as S
 from .candidates import CANDIDATES
 from .model import Data
 
-GROUP = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry", "torque_constant_error")
+ANGLE_TORQUES = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry")
+GROUP = ANGLE_TORQUES + ("torque_constant_error",)   # refined over angle, a current-proportional torque table
 SIGNATURE = {"shaft_flux_loss": "proportional to the current",
              "torque_constant_error": "proportional to the current",
              "angle_dependent_friction": "opposes the motion (sign of the speed)",
@@ -43,8 +44,7 @@ SIGNATURE = {"shaft_flux_loss": "proportional to the current",
              "inductance_saturation": "an inductance falling with the current (the current's transients)",
              "sensor_offset_gain": "a sensor map: shifts the reading at every angle"}
 AGAINST_MOTION = ("angle_dependent_friction", "stribeck_friction")   # a torque whose sign follows the motion
-DIRECTION_GROUP = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry",
-                   "stribeck_friction")      # told apart by direction (open loops, direction_rivals)
+DIRECTION_GROUP = ANGLE_TORQUES + ("stribeck_friction",)   # told apart by direction (open loops, direction_rivals)
 MARGIN_SHARE = 0.5    # a rival is close when its screening RSS drop is at least this share of the leader's
 GN_ITER = 2           # Gauss-Newton iterations of each family's table fit
 
@@ -399,7 +399,9 @@ def region_choice(ref: F.FitResult, screened: list, leader: str, data: Data, pas
         if q is None:
             continue
         rl, phi = angle_parts(fits[loc], data)
-        rg, _ = rl_cache[glob] if glob in rl_cache else rl_cache.setdefault(glob, angle_parts(fits[glob], data))
+        if glob not in rl_cache:
+            rl_cache[glob] = angle_parts(fits[glob], data)
+        rg, _ = rl_cache[glob]
         if _failed(rl) or _failed(rg):
             continue
         inside = np.asarray(REGION[loc](q, phi), bool)

@@ -802,8 +802,8 @@ def fit_series(nominal: F.FitResult, data: Data, period_deg: float, parts: tuple
     parameters, period and coefficients fitted together by output error (shapes.fit_penalized: Gauss-Newton
     with the nominal parameters' pull to the nameplate), and its held-out error (shapes.heldout_error, the
     folds of the generic tables'; skipped, inf, without ``heldout``). None when the model cannot be simulated.
-    ``grown_from``: the series whose coefficients ``start`` carries (more harmonics, both parts, a multiple or
-    a fraction of its period); the fit then starts from that series' nominal parameters too, as they were fitted
+    ``grown_from``: the series whose coefficients ``start`` carries (more harmonics, a multiple or a fraction
+    of its period); the fit then starts from that series' nominal parameters too, as they were fitted
     with it. From the calibrated nominal's instead, the start is not the smaller series' optimum, and a few
     Gauss-Newton steps ended a nested series above it (seed-24 detent: 6 harmonics RSS 1.33e6 against 3
     harmonics' 4.88e5; the doubled period 8.7e5)."""
@@ -934,9 +934,10 @@ def reductions(c: dict, harmonics: int, period_deg: float, parts: tuple, current
 
 
 def model_current_rms(s: Series, data: Data) -> float:
-    """RMS of the current [A] the series' model draws on the recordings (the scale of a torque per ampere);
-    1 A when it cannot be simulated or draws none."""
-    if "current" not in s.parts:
+    """RMS of the current [A] the series' model draws on the recordings (the scale of a torque per ampere
+    against a torque of the angle alone); 1 A for a series of one part (no other part to weigh it against), or
+    when it cannot be simulated or draws none."""
+    if len(s.parts) < 2:
         return 1.0
     plant, sensor = s.fit.spec.build(s.fit.x)
     sim = simulate(plant, sensor, data)
