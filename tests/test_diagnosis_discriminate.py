@@ -349,3 +349,17 @@ def test_a_uniform_shift_at_both_stops_is_a_reading_offset(closed_shift, open_sh
     if expect:
         assert got["samples"] == [200, 400]
     assert D.uniform_shift(delta, phi, phi > np.radians(90.0)) is None      # one part alone: no evidence
+
+
+def test_a_ripple_per_ampere_takes_the_angle_tables_periodogram_as_second_estimate():
+    """unmodelled._periodogram: a residual's period found per ampere (key current) is checked against the current
+    table's periodogram when it has one, else the angle table's: in a closed loop the current follows the angle and
+    the angle table absorbs the ripple (current_ripple random closed s27 was named airflow_torque)."""
+    from etb_gym.diagnose import unmodelled as U
+    angle = {"period_deg": 21.0, "periodic_r2": 0.90, "cycles": 2.4}
+    assert U._periodogram({"angle": angle, "current": {"periodic": False}}, "current") is angle
+    own = {"period_deg": 22.0, "periodic_r2": 0.7}
+    assert U._periodogram({"angle": angle, "current": own}, "current") is own
+    weak = {"period_deg": 30.0, "periodic_r2": 0.1}
+    assert U._periodogram({"angle": weak, "current": {}}, "current") == {}
+    assert U._periodogram({"angle": angle}, "angle") is angle
