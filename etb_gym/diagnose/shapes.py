@@ -82,13 +82,25 @@ class MapTerm:
     scale: float                  # typical knot value (normalization of the coefficients)
     unit: str
     fixed: tuple = ()             # other fields of the component ((name, value), ...)
+    basis: np.ndarray | None = None   # knot values (value fields in order, flattened) = basis @ coefficients;
+                                      # None: the coefficients are the knot values (a nested, tied form otherwise:
+                                      # :func:`direction_split_term`)
 
     @property
     def n_coef(self) -> int:
-        return self.grid.size * len(self.value_fields)
+        return self.grid.size * len(self.value_fields) if self.basis is None else self.basis.shape[1]
+
+    def values(self, coef) -> np.ndarray:
+        """The knot values of every value field (flattened, fields in order) for coefficients ``coef``."""
+        c = np.asarray(coef, float)
+        return c if self.basis is None else self.basis @ c
 
     def roughness(self) -> np.ndarray:
-        """Second differences of the knot values, per value field, in normalized coefficients."""
+        """Second differences of the knot values, per value field, in normalized coefficients (through the
+        basis where there is one: a direction offset constant over the grid has none)."""
+        if self.basis is not None:
+            R = dataclasses.replace(self, basis=None).roughness()
+            return R @ self.basis if R.size else np.zeros((0, self.n_coef))
         n = self.grid.size
         if n < 3:
             return np.zeros((0, self.n_coef))
@@ -125,8 +137,9 @@ class _Factory:
         t = self.term
         n = t.grid.size
         kw = {t.cls.grid_field: tuple(t.grid)}
+        vals = t.values(coef)
         for j, f in enumerate(t.value_fields):
-            kw[f] = tuple(coef[j * n:(j + 1) * n])
+            kw[f] = tuple(vals[j * n:(j + 1) * n])
         kw.update(dict(t.fixed))
         comp = t.cls(t.cls.Params(**kw))
         comp.name = t.id                     # unique in the plant (two tables of one kind may coexist)
@@ -265,7 +278,11 @@ def _hat_time(x: np.ndarray, grid: np.ndarray, dt: float) -> np.ndarray:
 def visit_time_s(term: "MapTerm", data: Data) -> np.ndarray | None:
     """Per coefficient of ``term`` (value fields in order): the hat-weighted time the recordings spent near the
     knot, in the table's own variable (angle, speed per direction, current). None: not known (no current
-    recorded for a current table; another grid)."""
+    recorded for a current table; another grid). With a basis, a coefficient's time is the sum over the knots it
+    moves (a direction offset: every knot of both directions)."""
+    if term.basis is not None:
+        v = visit_time_s(dataclasses.replace(term, basis=None), data)
+        return None if v is None else (np.abs(term.basis) > 0).T.astype(float) @ v
     dts = np.concatenate([np.full(rd.rec.n, rd.rec.dt_s) for rd in data.recs])
     field = term.cls.grid_field
     if field == "angle_rad":
@@ -302,6 +319,8 @@ def family_terms(cid: str, base, data: Data) -> list:
     or differs by current direction)."""
     t = family_term(cid, base, data)
     out = [t] if t is not None else []
+    if t is not None and t.family == "friction":       # every friction family: a level that differs by direction
+        out.append(direction_split_term(t) if t.cls is mx.SpeedFrictionMap else direction_offset_term(cid))
     if cid == "torque_constant_error":
         grid = current_grid(data, base, 9, by_extent=True)
         out.append(MapTerm(f"{cid}_current_map", "electrical", mx.CurrentTorqueConstantMap, grid,
@@ -313,6 +332,30 @@ def family_terms(cid: str, base, data: Data) -> list:
         out.append(MapTerm(f"{cid}_current_torque_map", "electrical", mx.CurrentTorqueMap, grid,
                            ("delta_Nm_per_A",), 0.002, "N m/A"))
     return out
+
+
+def direction_split_term(term: MapTerm) -> MapTerm:
+    """``term`` (a friction table over speed with independent opening and closing branches) in its nested form:
+    one shape over speed shared by both directions, m(|omega|), plus a level offset d constant over speed,
+    opening m + d and closing m - d (n + 1 coefficients instead of 2 n; d = 0 is the symmetric table). A rig's
+    friction may differ by direction (the return spring's preload loads the bearings one way; seals): with
+    independent branches each direction's level is as rough as its shape, and the cross-validation's one weight
+    cannot keep a direction offset while smoothing the shape (docs/diagnosis-rounds/round24-e24friction.md)."""
+    n = term.grid.size
+    B = np.zeros((2 * n, n + 1))
+    B[:n, :n] = np.eye(n)
+    B[n:, :n] = np.eye(n)
+    B[:n, n], B[n:, n] = 1.0, -1.0
+    return dataclasses.replace(term, id=f"{term.id}_split", basis=B)
+
+
+def direction_offset_term(cid: str) -> MapTerm:
+    """A friction level offset by direction alone, for a friction family whose table is not over speed (its
+    formula keeps its own shape): one coefficient d, the level +d while opening and -d while closing at every
+    speed (a SpeedFrictionMap whose two knots hold the same value)."""
+    B = np.array([[1.0], [1.0], [-1.0], [-1.0]])
+    return MapTerm(f"{cid}_direction_map", "friction", mx.SpeedFrictionMap, np.array([0.0, 1.0]),
+                   ("opening_Nm", "closing_Nm"), 0.005, "N m", (("presliding_rad", 2e-3),), basis=B)
 
 
 def family_term(cid: str, base, data: Data) -> MapTerm | None:
@@ -542,6 +585,7 @@ def _penalty_scales(J: np.ndarray, pb: Problem) -> list:
         m = ridge > 0
         jj = float(np.mean(np.sum(J[:, m] ** 2, axis=0))) if m.any() else 1.0
         dd = float(np.mean(np.sum(D[:, m] ** 2, axis=0))) if m.any() and D.size else 1.0
+        dd = dd if dd > 0.0 else 1.0          # no roughness at all (a direction offset alone): the ridge's scale
         out.append(max(jj, 1e-12) / max(dd, 1e-12))
     return out
 
@@ -786,7 +830,8 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refine
             if pf is None or h_v < h_map:
                 h_map, pf, cont = h_v, pf_v, view is not data
         kept = h_map < (1.0 - MIN_GAIN) * h_formula
-        log(f"  shape of {cid}: table over {term.cls.grid_field} ({term.grid.size} knots, roughness weight "
+        log(f"  shape of {cid}: {term.id} over {term.cls.grid_field} ({term.grid.size} knots, {term.n_coef} "
+            f"coefficients, roughness weight "
             f"{pf.lams_rel[0]:.2g}{', fitted on the continuous replay' if cont else ''}): held-out {h_formula:.3g} -> "
             f"{h_map:.3g} ({'kept' if kept else 'not kept'})")
         if best is None or h_map < best.heldout_map:
