@@ -353,6 +353,11 @@ def polish_replay(fr: F.FitResult, data: Data, note: dict | None = None, ref=Non
     -294 % / +9 %, whole refit replay 16635 -> 5519, observer 5595 -> 5315 (noise 155): held-out twin 5.12x ->
     1.01x the noise; refused as before where only the replay gained (supply_drop@1 3B s23: observer +24, the
     refit's twin 2.91x against 2.32x; airflow_torque@1 random s23: +7, 14.7x against 13.7x).
+    Where that refuses, the halves are read as one two-fold check (:func:`folds_gain`: their held-out costs summed
+    fall by more than the sum's noise) and the whole refit is kept if the observer's cost rises by no more than
+    :func:`observer_allowance` of that summed gain (round 24: sensor_delay@2 random s27, a moving-average reading,
+    halves +83 % / -85 %, summed -45 %, observer +154: held-out twin 8.27x -> 1.28x; detent_torque 3B s27 3.56x ->
+    3.99x, summed -3.7 %).
     ``note`` (a dict, if given) gets the guard's figures (report.json ``replay_refit``). On failure: ``fr``."""
     if ref is None and not 0 < len(fr.x) <= REPLAY_MAX_PARAMS:
         return fr
