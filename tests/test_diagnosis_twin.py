@@ -300,3 +300,24 @@ def test_a_closed_loop_replay_refit_refused_by_the_halves_is_kept_where_both_res
     assert not both_gain([8477.0, 6374.0, 155.0], [5034.0, 5058.0, 155.0])
     assert not both_gain([8477.0, 6374.0, 155.0], [5034.0, 4900.0, 155.0])    # within the observer's noise
     assert not both_gain([8477.0, 8400.0, 155.0], [5034.0, 4000.0, 155.0])    # within the replay's noise
+
+
+def test_a_closed_loop_replay_refit_whose_halves_gain_together_is_kept_within_the_observers_allowance():
+    """run.folds_gain (round 24): where one half's refit gains on the other half and the other does not, the
+    two halves are one two-fold check: their held-out costs summed must fall by more than the sum's noise
+    (sensor_delay@2 random s27: 13763 -> 25133 and 43520 -> 6387, summed 57283 -> 31520: gains; the whole refit
+    took the held-out twin 8.27x -> 1.28x); halves whose sum rises do not (backlash-like -14 % / +2 %)."""
+    from etb_gym.diagnose.run import folds_gain, folds_total, observer_allowance
+    m = 109.5
+    split = [{"held_cost_before": 13763.0, "held_cost_after": 25133.0, "margin": m},
+             {"held_cost_before": 43520.0, "held_cost_after": 6387.0, "margin": m}]
+    assert folds_gain(split)
+    t = folds_total(split)
+    assert t["held_cost_before"] == pytest.approx(57283.0) and t["margin"] == pytest.approx(m * math.sqrt(2))
+    assert observer_allowance([t], 9843.7, 12000) == pytest.approx((1 - 31520.0 / 57283.0) * 9843.7)
+    worse = [{"held_cost_before": 5000.0, "held_cost_after": 5700.0, "margin": m},
+             {"held_cost_before": 5000.0, "held_cost_after": 4900.0, "margin": m}]
+    assert not folds_gain(worse)
+    tiny = [{"held_cost_before": 5000.0, "held_cost_after": 5100.0, "margin": m},
+            {"held_cost_before": 5000.0, "held_cost_after": 4780.0, "margin": m}]
+    assert not folds_gain(tiny)          # 120 below the sum's noise 155
