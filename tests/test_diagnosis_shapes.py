@@ -518,3 +518,29 @@ def test_the_stribeck_speed_table_reaches_low_speeds_at_the_same_spacing(monkeyp
     assert g[1] == pytest.approx(first) and g[-2] == pytest.approx(top)
     assert g.size - 2 == count                      # knots from the first to the top
     assert np.allclose(S.speed_grid(None, 7), np.concatenate([[0.0], np.geomspace(top / 300, top, 6), [3 * top]]))
+
+
+def test_a_reduced_series_grows_its_harmonics_back_at_its_own_period(monkeypatch):
+    """unmodelled.regrown: a series reduced to P / m keeps H // m harmonics (a 3-harmonic series of a doubled
+    period: 1); it is grown to SERIES_HARMONICS at its own period, the period held, each growth kept when it
+    lowers the held-out error (period held) by SERIES_MIN_GAIN (detent_torque 3B open s26: a 12.3 deg sawtooth
+    ended as a sine, twin 4.2x the noise)."""
+    from types import SimpleNamespace
+    one = SimpleNamespace(harmonics=1, heldout=100.0, parts=("angle",),
+                          component=SimpleNamespace(params=SimpleNamespace(period_rad=math.radians(12.3))))
+    calls = []
+
+    def fake_fit(nominal, data, P, parts, H, start, log, period_free=True, heldout=True, grown_from=None):
+        calls.append((round(P, 6), H, period_free, heldout, grown_from.harmonics))
+        return SimpleNamespace(harmonics=H, heldout=math.inf, parts=parts, component=grown_from.component)
+    scores = {3: 50.0, 6: 49.0}                      # 6 harmonics: less than SERIES_MIN_GAIN better, not kept
+    monkeypatch.setattr(U, "fit_series", fake_fit)
+    monkeypatch.setattr(U, "_coefficients", lambda s: {})
+    monkeypatch.setattr(U, "heldout_period_held", lambda s, data: scores[s.harmonics])
+    quiet = lambda *a: None  # noqa: E731
+    s = U.regrown(one, None, None, quiet)
+    assert s.harmonics == 3 and s.heldout == 50.0
+    assert calls == [(12.3, 3, False, False, 1), (12.3, 6, False, False, 3)]
+    scores.update({3: 99.0, 6: 96.0})                # no gain: the reduced series stays
+    calls.clear()
+    assert U.regrown(one, None, None, quiet) is one and calls == [(12.3, 3, False, False, 1), (12.3, 6, False, False, 1)]

@@ -363,6 +363,9 @@ def markdown(result, figures) -> str:
                   "which the closed loop's fits did not use, they did not lower the cost by more than its noise "
                   f"({rt['replay_cost_tables']:.0f} with, {rt['replay_cost_formula']:.0f} without, margin "
                   f"{rt['margin']:.0f}); the twin has the effects' formulas only."]
+    tr = r.get("twin_range")
+    if tr and tr.get("beyond"):
+        lines += ["", f"Where the twin extrapolates: {tr['words']}."]
     figures = list(figures) + [f for f in r.get("shape_figures", []) if f not in figures]
     lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
     lines += ["", f"The calibrated plant (with the effects that act on the plate) is `{r['calibrated_plant']}`: "

@@ -671,6 +671,9 @@ def _finish(recs, data, base, nominal, final, steps, res0, opts, t_start, skippe
         result.report["observer"] = {"bandwidth_rad_s": observer.OMEGA_O, "corrects": "angle"}
     if shaped is not None:
         shaped.attach(result, out)
+    from .twin_range import describe as twin_range     # where the exported twin extrapolates in angle
+    result.report["twin_range"] = twin_range(result.plant, nominal.spec.build(nominal.x)[0], data, shaped,
+                                             tables_note)
     lap("report")
     result.report["elapsed_breakdown_s"] = stages
     result.elapsed_s = result.report["elapsed_s"] = time.perf_counter() - t_start   # the stages' sum so far

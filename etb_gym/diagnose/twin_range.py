@@ -1,0 +1,94 @@
+"""Where the exported twin extrapolates: the part of the stroke its training recordings did not visit (issue 15).
+
+A twin is fitted on the angles its recordings went through. Between the closed and the open stop the user may
+drive it anywhere; beyond the visited angles each of its angle-dependent parts continues in its own way: a
+family's formula by its law (a spring asymmetry's rate, an airflow polynomial), a learned table held at its edge
+value (shapes.hold_rows) or continued along its slope (closed_twin.continue_tables), a Fourier series in angle by
+its period, the generic tables of the unmodelled torque at 0 (the nominal model). None of this is evidence.
+
+Measured (docs/diagnosis-rounds/round24-h24opentwin.md): spring_asymmetry@2 random open seed 26 visited 5.8-87.4
+deg of a 0.9-88.5 deg stroke; the closed held-out recording holds the plate down to 3.1 deg, where the truth's
+closing spring hardens beyond the formula's straight continuation: 57 % of the held-out's time lies outside the
+training's states and holds 99 % of its squared error (twin 17.6x the noise there, 2.6x elsewhere).
+
+:func:`describe` gives report.json ``twin_range``: the visited angles (``EDGE_Q`` quantiles), the stroke, the
+unvisited spans wider than ``MIN_SPAN_DEG``, and per span the twin's angle torque at rest minus the calibrated
+nominal model's at the far end (the extrapolated correction, N m) and what carries it.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+EDGE_Q = (0.1, 99.9)      # percentiles of the recorded angles taken as the visited range (round 14's quantiles)
+MIN_SPAN_DEG = 1.0        # an unvisited span narrower than this is not reported
+
+
+def _static_torque(plant, phi_rad: np.ndarray) -> np.ndarray | None:
+    """The summed torque [N m] of the plant's stateless components at rest (omega 0, current 0); None when it
+    cannot be evaluated (a component's kernel fails)."""
+    from .unmodelled import _stateless_torque
+    try:
+        t = _stateless_torque(plant, phi_rad, np.zeros(phi_rad.size), np.zeros(phi_rad.size))
+    except (ValueError, ZeroDivisionError, FloatingPointError, OverflowError, TypeError, IndexError):
+        return None
+    return t if np.all(np.isfinite(t)) else None
+
+
+def _carriers(plant, shaped, tables_note) -> list[str]:
+    """What continues the twin's angle-dependent torque beyond the visited angles, in words."""
+    out = []
+    continued = {e["table"] for e in (tables_note or {}).get("beyond_visited", {}).get("tables", [])} \
+        if (tables_note or {}).get("beyond_visited", {}).get("kept") else set()
+    for ref in getattr(shaped, "refinements", []) or []:
+        if ref.kept and ref.term.cls.grid_field == "angle_rad":
+            how = ", the table continued along its slope" if ref.term.id in continued else ""
+            out.append(f"{ref.family_id}'s formula + learned table over angle{how}")
+    g = getattr(shaped, "generic", None)
+    if getattr(shaped, "outside", False) and g is not None:
+        out.append("the Fourier series in angle (repeats its period)" if g.series is not None
+                   else "the unmodelled tables (back to the nominal model)")
+    named = [getattr(c, "effect_id", None) or c.__class__.__name__ for c in plant.components
+             if getattr(c, "role", "") == "effect"]
+    if not out and named:
+        out.append("the effects' own laws (" + ", ".join(named) + ")")
+    return out
+
+
+def describe(plant, nominal_plant, data, shaped=None, tables_note=None) -> dict:
+    """report.json ``twin_range`` (see the module's docstring). ``plant``: the exported twin; ``nominal_plant``:
+    the calibrated nominal model; ``data``: the training recordings (model.Data)."""
+    a = np.concatenate([rd.rec.angle_deg for rd in data.recs])
+    lo, hi = (float(v) for v in np.percentile(a, EDGE_Q))
+    stroke = [math.degrees(plant.angle_min_rad), math.degrees(plant.angle_max_rad)]
+    out = {"visited_deg": [lo, hi], "stroke_deg": stroke, "beyond": [], "words": ""}
+    spans = []
+    if math.isfinite(stroke[0]) and lo - stroke[0] > MIN_SPAN_DEG:
+        spans.append(("below", stroke[0], lo))
+    if math.isfinite(stroke[1]) and stroke[1] - hi > MIN_SPAN_DEG:
+        spans.append(("above", hi, stroke[1]))
+    carriers = _carriers(plant, shaped, tables_note)
+    words = []
+    for side, s0, s1 in spans:
+        far, edge = (s0, s1) if side == "below" else (s1, s0)
+        phi = np.radians(np.array([far, edge]))
+        tw, tn = _static_torque(plant, phi), _static_torque(nominal_plant, phi)
+        corr = None if tw is None or tn is None else [float(tw[0] - tn[0]), float(tw[1] - tn[1])]
+        out["beyond"].append({"side": side, "from_deg": s0, "to_deg": s1,
+                              "correction_Nm_far": corr[0] if corr else None,
+                              "correction_Nm_edge": corr[1] if corr else None})
+        w = f"{s0:.1f}-{s1:.1f} deg"
+        if corr is not None:
+            w += (f" (the twin's torque at rest differs from the calibrated nominal model's by {corr[1]:+.3f} N m at "
+                  f"the visited edge, {corr[0]:+.3f} N m at the stop)")
+        words.append(w)
+    out["carriers"] = carriers
+    if words:
+        out["words"] = (f"the training recordings visited {lo:.1f}-{hi:.1f} deg of the stroke "
+                        f"{stroke[0]:.1f}-{stroke[1]:.1f} deg; the twin extrapolates over " + " and ".join(words)
+                        + (", continued there by " + "; ".join(carriers) if carriers else "")
+                        + ": not evidence, check it on a recording that goes there")
+    else:
+        out["words"] = f"the training recordings visited {lo:.1f}-{hi:.1f} deg: the whole stroke"
+    return out

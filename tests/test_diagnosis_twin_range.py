@@ -1,0 +1,37 @@
+"""report.json twin_range: where the exported twin extrapolates in angle (diagnose/twin_range.py)."""
+from types import SimpleNamespace
+
+import numpy as np
+
+from etb_gym.diagnose.twin_range import describe
+from etb_gym.plant import make_plant
+
+
+def _data(angles_deg):
+    return SimpleNamespace(recs=[SimpleNamespace(rec=SimpleNamespace(angle_deg=np.asarray(angles_deg, float)))])
+
+
+def test_a_twin_trained_on_part_of_the_stroke_says_where_it_extrapolates():
+    plant = make_plant("3B")
+    lo_stop, hi_stop = np.degrees(plant.angle_min_rad), np.degrees(plant.angle_max_rad)
+    d = describe(plant, plant, _data(np.linspace(10.0, 60.0, 2001)))
+    assert [b["side"] for b in d["beyond"]] == ["below", "above"]
+    assert d["beyond"][0]["from_deg"] == lo_stop and abs(d["beyond"][0]["to_deg"] - 10.0) < 0.1
+    assert abs(d["beyond"][1]["from_deg"] - 60.0) < 0.1 and d["beyond"][1]["to_deg"] == hi_stop
+    # the twin is the nominal model here: nothing extrapolated beyond it
+    assert d["beyond"][0]["correction_Nm_far"] == 0.0 and d["beyond"][1]["correction_Nm_edge"] == 0.0
+    assert "extrapolates over" in d["words"]
+
+
+def test_a_twin_trained_over_the_whole_stroke_reports_no_span():
+    plant = make_plant("3B")
+    d = describe(plant, plant, _data(np.linspace(np.degrees(plant.angle_min_rad), np.degrees(plant.angle_max_rad), 999)))
+    assert d["beyond"] == [] and "the whole stroke" in d["words"]
+
+
+def test_the_correction_beyond_the_data_is_the_twins_torque_minus_the_nominals():
+    plant = make_plant("3B")
+    stiffer = plant.with_params({"spring.rate_Nm_per_rad": plant.params_dict()["spring.rate_Nm_per_rad"] * 1.1})
+    d = describe(stiffer, plant, _data(np.linspace(20.0, 60.0, 501)))
+    above = d["beyond"][1]
+    assert above["correction_Nm_far"] is not None and abs(above["correction_Nm_far"]) > abs(above["correction_Nm_edge"])
