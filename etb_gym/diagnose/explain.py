@@ -143,8 +143,40 @@ def angle_rms_ratio(new: F.FitResult, old: F.FitResult, data: Data) -> float:
     return math.sqrt(float(a @ a) / max(float(b @ b), 1e-300))
 
 
-def extend(x_old: np.ndarray, spec: Spec) -> np.ndarray:
-    return np.concatenate([x_old, np.zeros(len(spec.params) - len(x_old))])
+def extend(x_old: np.ndarray, spec: Spec, data: Data | None = None) -> np.ndarray:
+    """``x_old`` with the new candidate's parameters at their start (0: the nameplate's values); with ``data``, a
+    stop's angle (a parameter measured from a stop, ``ref`` a stop angle) that the recordings never reach starts
+    where the plate was furthest instead (:func:`reached_stop`)."""
+    x = np.concatenate([x_old, np.zeros(len(spec.params) - len(x_old))])
+    if data is not None:
+        for k in range(len(x_old), len(spec.params)):
+            v = reached_stop(spec.params[k][1], spec.base, data)
+            if v is not None:
+                x[k] = v
+    return x
+
+
+def reached_stop(p, base: Plant, data: Data) -> float | None:
+    """The normalized start of a stop-angle parameter ``p`` (its ``ref`` the open or the closed stop) at the
+    recordings' furthest angle on that side of limp-home, where that lies between the parameter's bound and the
+    nameplate's stop (the plate never reached the nameplate's stop; at most as far as the bound allows); None
+    otherwise (the start stays). Why: a stop's angle acts only on readings in contact with it, so where no reading
+    reaches it the fit has no gradient and stays at the nameplate's stop whatever the data say (end_stop_compliance@2
+    3B open s26, a contact from 88.4 deg before the nominal 90: screening dBIC +12 from 90 deg; from the furthest
+    reading, 88.5 deg, -5219; docs/diagnosis-rounds/round24-g24naming.md)."""
+    if p.ref not in ("open_stop_rad", "closed_stop_rad"):
+        return None
+    ang = [np.radians(rd.rec.angle_deg) for rd in data.recs if rd.rec.n]
+    if not ang:
+        return None
+    lh = base.limp_home_rad
+    if p.ref == "open_stop_rad":
+        v = max(float(np.max(a)) for a in ang)
+        ok = p.lower < v < p.init and v > lh
+    else:
+        v = min(float(np.min(a)) for a in ang)
+        ok = p.init < v < p.upper and v < lh
+    return (v - p.init) / p.scale if ok and math.isfinite(v) else None
 
 
 @dataclasses.dataclass
@@ -174,7 +206,7 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
     tasks = [("fit", screen_dict, ctx.nominal, active, cur.x, SCREEN_NFEV)]
     for c in remaining:
         spec = cur.spec.with_candidate(CANDIDATES[c])
-        tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), extend(cur.x, spec), SCREEN_NFEV,
+        tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), extend(cur.x, spec, ctx.data), SCREEN_NFEV,
                       len(cur.x)))
     ctx.describe(f"round {rnd + 1}: screening {len(tasks) - 1} candidates")
     res = ctx.runner.map(tasks, ctx.progress)
