@@ -12,9 +12,9 @@ from etb_gym.diagnose.model import Spec
 from etb_gym.plant import make_plant
 
 
-def _data(*angle_deg):
-    return SimpleNamespace(recs=[SimpleNamespace(rec=SimpleNamespace(angle_deg=np.asarray(a, float), n=len(a)))
-                                 for a in angle_deg])
+def _data(*angle_deg, residual="replay"):
+    return SimpleNamespace(recs=[SimpleNamespace(rec=SimpleNamespace(angle_deg=np.asarray(a, float), n=len(a)),
+                                                 residual=residual) for a in angle_deg])
 
 
 def _stop_params():
@@ -46,3 +46,6 @@ def test_a_stop_start_stays_where_the_plate_reached_it_or_never_came_near():
     v = reached_stop(p["closed_rad"], base, _data(np.linspace(1.2, 80.0, 40)))
     assert v is not None and abs(math.degrees(p["closed_rad"].init + p["closed_rad"].scale * v) - 1.2) < 1e-9
     assert reached_stop(p["closed_rad"], base, _data(np.linspace(4.0, 80.0, 40))) is None  # never below limp-home
+    # a closed loop's extremes are where its reference went: no start moves
+    closed = _data(np.linspace(2.1, 83.5, 40), residual="observer")
+    assert reached_stop(p["closed_rad"], base, closed) is None and reached_stop(p["open_rad"], base, closed) is None

@@ -158,15 +158,18 @@ def extend(x_old: np.ndarray, spec: Spec, data: Data | None = None) -> np.ndarra
 
 def reached_stop(p, base: Plant, data: Data) -> float | None:
     """The normalized start of a stop-angle parameter ``p`` (its ``ref`` the open or the closed stop) at the
-    recordings' furthest angle on that side of limp-home, where that lies between the parameter's bound and the
-    nameplate's stop (the plate never reached the nameplate's stop; at most as far as the bound allows); None
-    otherwise (the start stays). Why: a stop's angle acts only on readings in contact with it, so where no reading
+    open-loop recordings' furthest angle on that side of limp-home, where that lies between the parameter's bound
+    and the nameplate's stop (the plate never reached the nameplate's stop; at most as far as the bound allows);
+    None otherwise (the start stays). Open loops only: their excitation drives the plate to both stops, so a
+    furthest reading short of the nameplate's stop is where something stopped it; a closed loop's furthest
+    reading is where its reference went (seed index 7: 3 of 7 closed-loop cases reach 2.1-2.9 deg or 83.5 deg
+    short of a stop, none of the 7 open-loop ones). Why: a stop's angle acts only on readings in contact with it, so where no reading
     reaches it the fit has no gradient and stays at the nameplate's stop whatever the data say (end_stop_compliance@2
     3B open s26, a contact from 88.4 deg before the nominal 90: screening dBIC +12 from 90 deg; from the furthest
     reading, 88.5 deg, -5219; docs/diagnosis-rounds/round24-g24naming.md)."""
     if p.ref not in ("open_stop_rad", "closed_stop_rad"):
         return None
-    ang = [np.radians(rd.rec.angle_deg) for rd in data.recs if rd.rec.n]
+    ang = [np.radians(rd.rec.angle_deg) for rd in data.recs if rd.rec.n and rd.residual == "replay"]
     if not ang:
         return None
     lh = base.limp_home_rad
