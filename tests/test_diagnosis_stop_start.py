@@ -1,6 +1,6 @@
-"""Where a stop's angle starts its screening fit (explain.reached_stop, round 24): at the recordings' furthest
-angle when they never reach the nameplate's stop, else at the nameplate's stop. No simulation: the recordings are
-stand-ins holding only their angles."""
+"""Where a stop's angle starts its screening fit (explain.reached_stop, round 24): at the open-loop recordings'
+furthest reading when neither they nor the model's plate reach the nameplate's stop, else at the nameplate's stop.
+No simulation: the recordings are stand-ins holding only their angles, the model's angle is given."""
 import math
 from types import SimpleNamespace
 
@@ -17,6 +17,11 @@ def _data(*angle_deg, residual="replay"):
                                                  residual=residual) for a in angle_deg])
 
 
+def _reached(p, base, data, model=None):
+    """reached_stop with the model's plate where the readings are (``model``: the same shift for all)."""
+    return reached_stop(p, base, data, [rd.rec.angle_deg + (model or 0.0) for rd in data.recs])
+
+
 def _stop_params():
     base = make_plant("3B")
     spec = Spec(base, (CANDIDATES["end_stop_compliance"],))
@@ -27,12 +32,12 @@ def _stop_params():
 def test_a_stop_the_recordings_never_reach_starts_at_the_furthest_reading():
     base, spec, p = _stop_params()
     data = _data(np.linspace(-0.05, 88.48, 50), np.linspace(10.0, 60.0, 20))    # open stop nominal 90 deg
-    v = reached_stop(p["open_rad"], base, data)
+    v = _reached(p["open_rad"], base, data)
     assert v is not None
     assert abs(math.degrees(p["open_rad"].init + p["open_rad"].scale * v) - 88.48) < 1e-9
-    assert reached_stop(p["closed_rad"], base, data) is None       # the plate reached the closed stop (-0.05 deg)
-    assert reached_stop(p["stiffness_Nm_per_rad"], base, data) is None   # not a stop angle
-    x = extend(np.zeros(len(spec.nominal)), spec, data)
+    assert _reached(p["closed_rad"], base, data) is None       # the plate reached the closed stop (-0.05 deg)
+    assert _reached(p["stiffness_Nm_per_rad"], base, data) is None   # not a stop angle
+    x = extend(np.zeros(len(spec.nominal)), spec, data, [rd.rec.angle_deg for rd in data.recs])
     k = len(spec.nominal)
     assert x[k] == v and x[k + 1] == 0.0 and x[k + 2] == 0.0
     assert np.all(extend(np.zeros(len(spec.nominal)), spec) == 0.0)     # without data: the nameplate's start
@@ -40,12 +45,16 @@ def test_a_stop_the_recordings_never_reach_starts_at_the_furthest_reading():
 
 def test_a_stop_start_stays_where_the_plate_reached_it_or_never_came_near():
     base, _, p = _stop_params()
-    assert reached_stop(p["open_rad"], base, _data(np.linspace(0.0, 90.3, 40))) is None    # pressed the stop
-    assert reached_stop(p["open_rad"], base, _data(np.linspace(0.0, 70.0, 40))) is None    # never near it (bound 84)
+    assert _reached(p["open_rad"], base, _data(np.linspace(0.0, 90.3, 40))) is None    # pressed the stop
+    # the readings stop short (a sensor offset, say) but the model's plate presses the stop: it has a gradient there
+    assert _reached(p["open_rad"], base, _data(np.linspace(0.0, 89.5, 40)), model=0.6) is None
+    # resting at limp-home is not a plate driven toward the closed stop
+    assert _reached(p["closed_rad"], base, _data(np.linspace(2.97, 80.0, 40))) is None
+    assert _reached(p["open_rad"], base, _data(np.linspace(0.0, 70.0, 40))) is None    # never near it (bound 84)
     # the closed stop: the plate held above it but driven below limp-home (3 deg) starts it at its lowest reading
-    v = reached_stop(p["closed_rad"], base, _data(np.linspace(1.2, 80.0, 40)))
+    v = _reached(p["closed_rad"], base, _data(np.linspace(1.2, 80.0, 40)))
     assert v is not None and abs(math.degrees(p["closed_rad"].init + p["closed_rad"].scale * v) - 1.2) < 1e-9
-    assert reached_stop(p["closed_rad"], base, _data(np.linspace(4.0, 80.0, 40))) is None  # never below limp-home
+    assert _reached(p["closed_rad"], base, _data(np.linspace(4.0, 80.0, 40))) is None  # never below limp-home
     # a closed loop's extremes are where its reference went: no start moves
     closed = _data(np.linspace(2.1, 83.5, 40), residual="observer")
-    assert reached_stop(p["closed_rad"], base, closed) is None and reached_stop(p["open_rad"], base, closed) is None
+    assert _reached(p["closed_rad"], base, closed) is None and _reached(p["open_rad"], base, closed) is None
