@@ -232,8 +232,14 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
     model_deg = model_angles(cur, ctx.data) if stops else None     # where a stop's angle starts (reached_stop)
     for c in remaining:
         spec = cur.spec.with_candidate(CANDIDATES[c])
-        tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), extend(cur.x, spec, ctx.data, model_deg),
-                      SCREEN_NFEV, len(cur.x)))
+        x0 = extend(cur.x, spec, ctx.data, model_deg)
+        moved = [k for k in range(len(cur.x), len(x0)) if x0[k] != 0.0]
+        if moved:
+            vals = spec.values(x0)
+            ctx.log(f"  {c}: starts at " + ", ".join(f"{spec.params[k][1].name} {math.degrees(vals[spec.names[k]]):.2f} deg"
+                                                     for k in moved)
+                    + ", where the readings went furthest (neither they nor the model's plate reach the nameplate's stop)")
+        tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), x0, SCREEN_NFEV, len(cur.x)))
     ctx.describe(f"round {rnd + 1}: screening {len(tasks) - 1} candidates")
     res = ctx.runner.map(tasks, ctx.progress)
     if isinstance(res[0], Skipped):         # the current model failed at the screening step: stop here
