@@ -143,8 +143,64 @@ def angle_rms_ratio(new: F.FitResult, old: F.FitResult, data: Data) -> float:
     return math.sqrt(float(a @ a) / max(float(b @ b), 1e-300))
 
 
-def extend(x_old: np.ndarray, spec: Spec) -> np.ndarray:
-    return np.concatenate([x_old, np.zeros(len(spec.params) - len(x_old))])
+def extend(x_old: np.ndarray, spec: Spec, data: Data | None = None, model_deg: list | None = None) -> np.ndarray:
+    """``x_old`` with the new candidate's parameters at their start (0: the nameplate's values); with ``data`` and
+    ``model_deg`` (the current model's angle per recording, deg), a stop's angle (a parameter measured from a
+    stop, ``ref`` a stop angle) that neither the readings nor the model's plate reach starts where the readings
+    went furthest instead (:func:`reached_stop`)."""
+    x = np.concatenate([x_old, np.zeros(len(spec.params) - len(x_old))])
+    if data is not None and model_deg is not None:
+        for k in range(len(x_old), len(spec.params)):
+            v = reached_stop(spec.params[k][1], spec.base, data, model_deg)
+            if v is not None:
+                x[k] = v
+    return x
+
+
+def model_angles(fr: F.FitResult, data: Data) -> list:
+    """The model ``fr``'s angle per recording [deg] (the reading plus the normalized residual times the noise)."""
+    r = F.evaluate(fr.spec, data, fr.x, with_current=False)
+    out, k = [], 0
+    for rd in data.recs:
+        out.append(np.asarray(rd.rec.angle_deg, float) + r[k:k + rd.rec.n] * rd.noise_deg)
+        k += rd.rec.n
+    return out
+
+
+STOP_REFS = ("open_stop_rad", "closed_stop_rad")
+
+
+def reached_stop(p, base: Plant, data: Data, model_deg: list) -> float | None:
+    """The normalized start of a stop-angle parameter ``p`` (its ``ref`` the open or the closed stop) at the
+    open-loop recordings' furthest reading on that side, when neither those readings nor the current model's plate
+    (``model_deg``, per recording) reach the nameplate's stop (the parameter's start), and the furthest reading
+    lies inside the parameter's bound and nearer the stop than limp-home (the plate was driven past limp-home
+    toward the stop, not resting there); None otherwise (the start stays).
+    Why: a stop's angle acts only on a plate in contact with it, so where the model's plate never reaches it the fit
+    has no gradient and stays at the nameplate's stop whatever the data say (end_stop_compliance@2 3B open s26, a
+    contact from 88.4 deg before the nominal 90 that the calibrated model's plate never reaches either: screening
+    dBIC +12 from 90 deg; from the furthest reading, 88.5 deg, -5219; docs/diagnosis-rounds/round24-g24naming.md).
+    Open loops only: their excitation drives the plate to both stops, so a plate stopped short of the nameplate's
+    stop is what the stop's fit should start from; a closed loop's furthest reading is where its reference went
+    (seed index 7: 3 of 7 closed-loop cases stay 2.1-2.9 deg above or 6 deg below a stop, none of the open ones)."""
+    if p.ref not in STOP_REFS:
+        return None
+    use = [k for k, rd in enumerate(data.recs) if rd.rec.n and rd.residual == "replay" and k < len(model_deg)]
+    if not use:
+        return None
+    rec = [np.asarray(data.recs[k].rec.angle_deg, float) for k in use]
+    mod = [np.asarray(model_deg[k], float) for k in use]
+    lh = math.degrees(base.limp_home_rad)
+    stop, lo, hi = math.degrees(p.init), math.degrees(p.lower), math.degrees(p.upper)
+    if p.ref == "open_stop_rad":
+        v = max(float(np.max(a)) for a in rec)
+        m = max(float(np.max(a)) for a in mod)
+        ok = lo < v < stop and m < stop and v > 0.5 * (lh + stop)
+    else:
+        v = min(float(np.min(a)) for a in rec)
+        m = min(float(np.min(a)) for a in mod)
+        ok = stop < v < hi and m > stop and v < 0.5 * (lh + stop)
+    return (math.radians(v) - p.init) / p.scale if ok and math.isfinite(v) and math.isfinite(m) else None
 
 
 @dataclasses.dataclass
@@ -172,10 +228,18 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
     active = tuple(c.id for c in cur.spec.candidates)
     screen_dict = dict(ctx.base_dict, substeps=min(SCREEN_SUBSTEPS, ctx.base.substeps))
     tasks = [("fit", screen_dict, ctx.nominal, active, cur.x, SCREEN_NFEV)]
+    stops = any(p.ref in STOP_REFS for c in remaining for p in CANDIDATES[c].fit)
+    model_deg = model_angles(cur, ctx.data) if stops else None     # where a stop's angle starts (reached_stop)
     for c in remaining:
         spec = cur.spec.with_candidate(CANDIDATES[c])
-        tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), extend(cur.x, spec), SCREEN_NFEV,
-                      len(cur.x)))
+        x0 = extend(cur.x, spec, ctx.data, model_deg)
+        moved = [k for k in range(len(cur.x), len(x0)) if x0[k] != 0.0]
+        if moved:
+            vals = spec.values(x0)
+            ctx.log(f"  {c}: starts at " + ", ".join(f"{spec.params[k][1].name} {math.degrees(vals[spec.names[k]]):.2f} deg"
+                                                     for k in moved)
+                    + ", where the readings went furthest (neither they nor the model's plate reach the nameplate's stop)")
+        tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), x0, SCREEN_NFEV, len(cur.x)))
     ctx.describe(f"round {rnd + 1}: screening {len(tasks) - 1} candidates")
     res = ctx.runner.map(tasks, ctx.progress)
     if isinstance(res[0], Skipped):         # the current model failed at the screening step: stop here
