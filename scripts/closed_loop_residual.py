@@ -7,7 +7,7 @@ Two measurements, both on synthetic closed-loop recordings (``synthetic.make_rec
                     (result.significant_residual, what decides between `match` and a search for effects)
   --mode diagnose   the whole diagnosis (run.diagnose) per case: verdict, effects named, loop and residual used
   --mode scan       a candidate's screening fit without / with the profiled scan, and its held-out gain over
-                    0.5 s and 0.1 s fold blocks (fit.py; docs/diagnosis.md round 13)
+                    0.5 s and 0.1 s fold blocks (fit.py; docs/diagnosis-history.md round 13)
 
 Cases: clean 3B under the default PID, the PID without friction compensation and a stiffer PID without it
 (crossover 80 rad/s, phase margin 35 deg); clean random nameplates (``synthetic.random_nameplate``, the tool

@@ -1,4 +1,4 @@
-"""Where does a friction candidate's fit start and land? (docs/diagnosis.md, "Friction families: the fit's start").
+"""Where does a friction candidate's fit start and land? (docs/diagnosis-history.md, "Friction families: the fit's start").
 
 Makes a proof case's recording (no diagnosis), calibrates the nominal model as the diagnosis does, then fits
 nominal + CANDIDATE as the screening does (scan of the main parameter, SCREEN_NFEV at SCREEN_SUBSTEPS) and to

@@ -19,7 +19,7 @@ Rows go to --out (JSON lines, one per case, appended whole as each case finishes
 
 Rows keep the diagnosis's CPU time (report.json ``cpu_s``; the summary scales it to a 10 s recording) and, on
 closed loops, the effect's footprint as the observer residual sees it (``effect_size_observer``: the replay
-footprint ``effect_size`` overstates what a closed loop shows; docs/diagnosis.md, "Survey subset").
+footprint ``effect_size`` overstates what a closed loop shows; docs/diagnosis-history.md, "Survey subset").
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Before / after table of the twin's held-out error (issue 15, docs/diagnosis.md round 15): two row files of
+"""Before / after table of the twin's held-out error (issue 15, docs/diagnosis-history.md round 15): two row files of
 ``scripts/naming_survey.py`` (the same cases run on two trees) as one Markdown table, in the order of the first,
 with the count within the target and the CPU per 10 s recording.
 

@@ -18,7 +18,7 @@ def _shares(plant, seed):
 
 def test_a_strong_nameplate_travels_without_living_at_the_open_stop():
     """Nameplate 1001 (stall torque 2.9x what the spring and friction need at the open stop; 3B 1.4x) sat at
-    its open stop 74 % of 6 s recordings under 3B's raw duties (docs/diagnosis.md, round 11)."""
+    its open stop 74 % of 6 s recordings under 3B's raw duties (docs/diagnosis-history.md, round 11)."""
     at_open, at_closed, travel = _shares(random_nameplate(np.random.default_rng(1001)), 0)
     assert at_open < 0.25 and at_closed > 0.0 and travel > 0.6, (at_open, at_closed, travel)
 

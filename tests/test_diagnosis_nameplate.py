@@ -93,7 +93,7 @@ def test_cli_diagnoses_a_rig_of_another_nameplate_from_its_plant_file(tmp_path, 
     plant = load_plant(out / rep["calibrated_plant"])
     assert plant.params_dict()["drive.resistance_ohm"] == truth.params_dict()["drive.resistance_ohm"]
     if not concealed:
-        # the file's levels are 10-20 % off; the recording, not the file, decides them (docs/diagnosis.md round 16:
+        # the file's levels are 10-20 % off; the recording, not the file, decides them (docs/diagnosis-history.md round 16:
         # the calibration has no prior toward the file and lands on the truth's levels within 0.2 points)
         for k, v in true_levels.items():
             assert abs(file_plant.params_dict()[k] / v - 1) > 0.08

@@ -427,7 +427,7 @@ def test_a_family_table_is_fitted_on_both_views_of_an_open_loop_replay(monkeypat
 
 def test_a_friction_level_error_moves_a_held_rest_angle_by_the_error_over_the_spring_rate():
     # why a friction twin within a few mN m misses an open-loop held-out recording by 10-20x the noise
-    # (docs/diagnosis.md, round 15): the plate sticks where motor - spring = friction, so 1 mN m of friction moves
+    # (docs/diagnosis-history.md, round 15): the plate sticks where motor - spring = friction, so 1 mN m of friction moves
     # the rest angle by 1 mN m / k (3B: 0.16 deg, 13x a 0.012 deg noise)
     p = make_plant("3B")
     pd = p.params_dict()
@@ -446,7 +446,7 @@ def test_the_residual_shows_a_periodic_torque_and_whether_it_scales_with_the_cur
     detent of the same shape and period (20 deg, two harmonics, 6 s) are both found periodic with the period
     within 5 %; the ripple's part per ampere explains more than the part of the angle alone, the detent's the
     other way round; a clean recording shows no significant structure. (On 3 s recordings of the same torques
-    the period was 25 % off for the ripple: the statistic needs several sweeps, docs/diagnosis.md round 20.)"""
+    the period was 25 % off for the ripple: the statistic needs several sweeps, docs/diagnosis-history.md round 20.)"""
     from etb_gym.components.effects_periodic import PeriodicAngleTorque
     from etb_gym.diagnose import disturbance as D
     P, zero, c, s = 20.0, (0.0, 0.0), (0.004, 0.0), (0.006, 0.003)

@@ -1,5 +1,5 @@
 """A friction level that differs by direction of motion: the nested table forms of every friction family
-(shapes.direction_split_term, shapes.direction_offset_term; docs/diagnosis-rounds/round24-e24friction.md)."""
+(shapes.direction_split_term, shapes.direction_offset_term; docs/diagnosis-history.md, round 24 e24friction)."""
 from __future__ import annotations
 
 import numpy as np

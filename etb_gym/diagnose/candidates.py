@@ -152,13 +152,13 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
               (P("series_resistance_ohm", 0.02, -0.5, 3.0, 0.1, "ohm", ref="resistance_ohm"),
                P("forward_drop_V", 0.05, -1.0, 3.0, 0.2, "V"),
                # the current over which the forward drop builds up is the rig's switch or diode, not a constant
-               # (docs/diagnosis.md, open loop round 13: a diode-like drop with a 0.05-0.3 A knee)
+               # (docs/diagnosis-history.md, open loop round 13: a diode-like drop with a 0.05-0.3 A knee)
                P("forward_current_A", 0.05, 0.005, 1.0, 0.05, "A", ref="current_A")), fx.SupplyDrop,
               off=(("series_resistance_ohm", 0.0), ("forward_drop_V", 0.0))),
     Candidate("torque_constant_error", "electrical", fx.TorqueConstantError.description,
               (P("delta_Nm_per_A", 0.0, -0.08, 0.08, 0.01, "N m/A", ref="torque_constant_Nm_per_A"),), fx.TorqueConstantError,
               # the calibration balances the drive torque with preload, rate and friction: it absorbs the error's
-              # static part (docs/diagnosis.md round 16), so the fit starts along that trade
+              # static part (docs/diagnosis-history.md round 16), so the fit starts along that trade
               coscaled=True, off=(("delta_Nm_per_A", 0.0),)),
     Candidate("inductance_saturation", "electrical", fx.InductanceSaturation.description,
               (P("inductance_drop_H", 0.001, -0.02, 0.0045, 0.002, "H", ref="inductance_H",
@@ -200,7 +200,7 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
               (P("stiction_Nm", 0.01, 0.0, 0.4, 0.02, "N m", ref="friction_Nm"),
                P("stribeck_velocity_rad_s", 0.05, 0.002, 3.0, 0.05, "rad/s")), fx.StribeckFriction,
               # a rig's Stribeck velocity spans decades (0.02-1 rad/s); from 0.05 alone the fit of a rational drop
-              # stayed at stiction 0.144 N m (truth 0.080), RSS 2x the best start's (docs/diagnosis.md round 21)
+              # stayed at stiction 0.144 N m (truth 0.080), RSS 2x the best start's (docs/diagnosis-history.md round 21)
               off=(("stiction_Nm", 0.0),), starts=(0.2, 1.0)),
     Candidate("angle_dependent_friction", "friction", fx.AngleDependentFriction.description,
               (P("slope_Nm", 0.0, -0.3, 0.3, 0.02, "N m", ref="friction_Nm"),

@@ -8,7 +8,7 @@ loop, going on from the model's own state) was fitted by neither the formula mod
 is a held-out check of the table: a table that does not lower its cost by more than the cost's noise is dropped
 and the formula model (the greedy selection's fit) is the final model.
 
-Measured (docs/diagnosis.md, "Closed loops: tables checked on the replay (round 20)"): backlash@2 random seed
+Measured (docs/diagnosis-history.md, "Closed loops: tables checked on the replay (round 20)"): backlash@2 random seed
 15, an angle table around limp-home of which the loop visited one side only; the table held 0.03-0.09 N m on
 the side the loop never reached (the preload moved against it), observer cost 4824 with the table and
 4821 without; the twin replayed its training recording at 1.13x the noise, the formula model at 1.07x, and the
@@ -116,7 +116,7 @@ def continue_tables(final: F.FitResult, shaped, data: Data, note: dict | None = 
 
     Why: a closed loop visits the angles its set points need; the exported twin is used over the whole stroke.
     Beyond the visited knots the table held the family's total at its value at the last one (shapes.hold_rows):
-    a total that was still changing at the edge stops there. Measured (docs/diagnosis.md, round 23):
+    a total that was still changing at the edge stops there. Measured (docs/diagnosis-history.md, round 23):
     shaft_flux_loss@2 random seed 25, trained 3.7-64.6 deg, held-out to 83 deg: the total held at -0.0108 N m/A
     from 67.5 deg on, the held-out twin 22.8x the noise; the slope of the interval next to the edge's continued
     2.71x (of the edge's own 3.35x); the formula's own continuation (exponent at its bound) 79.7x. The knots are

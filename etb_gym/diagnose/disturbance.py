@@ -52,7 +52,7 @@ are compared (does a candidate account for the structure? is a mismatch left?), 
 scaled by the *nominal* model's (s^2, tau) of the same residual (``persistent_mismatch(..., ref=...)``): the
 energy of what is left, on the yardstick the structure was found with. The nominal model itself reads exactly
 its own z; so does every recording whose nominal structure stays below Z_DETECT (nothing is compared there).
-Measured (docs/diagnosis.md, round 12): stribeck_friction@2 random seed 3, the candidate's fit left 0.011 of the
+Measured (docs/diagnosis-history.md, round 12): stribeck_friction@2 random seed 3, the candidate's fit left 0.011 of the
 current's noise of the nominal's 0.015 and read z 34.6 on its own yardstick against 15.2 before, 6.4 on the
 nominal's.
 

@@ -179,7 +179,7 @@ def reached_stop(p, base: Plant, data: Data, model_deg: list) -> float | None:
     Why: a stop's angle acts only on a plate in contact with it, so where the model's plate never reaches it the fit
     has no gradient and stays at the nameplate's stop whatever the data say (end_stop_compliance@2 3B open s26, a
     contact from 88.4 deg before the nominal 90 that the calibrated model's plate never reaches either: screening
-    dBIC +12 from 90 deg; from the furthest reading, 88.5 deg, -5219; docs/diagnosis-rounds/round24-g24naming.md).
+    dBIC +12 from 90 deg; from the furthest reading, 88.5 deg, -5219; docs/diagnosis-history.md, round 24 g24naming).
     Open loops only: their excitation drives the plate to both stops, so a plate stopped short of the nameplate's
     stop is what the stop's fit should start from; a closed loop's furthest reading is where its reference went
     (seed index 7: 3 of 7 closed-loop cases stay 2.1-2.9 deg above or 6 deg below a stop, none of the open ones)."""
@@ -519,13 +519,13 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolv
     A candidate of ``structure_only`` (tried for the structure only: it did not pass the held-out gain) is
     accepted by ``resolves`` alone: the angle's RMS gain without the held-out gain is no evidence (measured: a
     sensor offset with a held-out error 19x the current model's lowered the angle's RMS by more than 10 % on a
-    closed loop, docs/diagnosis.md round 12).
+    closed loop, docs/diagnosis-history.md round 12).
     Footprint guard: the gain that accepts a candidate must be its effect's. With the effect switched off in
     its full fit (:func:`switched_off`: the nominal parameters as refitted, the composition kept) at least
     FOOTPRINT_SHARE of the gain must come back (:func:`own_share`, on the statistic of the rule that accepted
     it); a candidate whose own removal costs nothing explained nothing (measured: a clean closed loop, 3B seed
     17, "explained" by a coil heating at its bounds, C_th 2000 J/K and R_th 0.2 K/W, a few hundredths of a
-    kelvin in 6 s; docs/diagnosis.md round 15). Without the effect means the better of the full fit with the
+    kelvin in 6 s; docs/diagnosis-history.md round 15). Without the effect means the better of the full fit with the
     effect switched off and the current model refitted from the full fit's values (_footprint: a fit that leans
     its nominal parameters on a sensor offset gives the gain back when the offset alone is switched off, and not
     when the nominal parameters may move back). ``persistent``: the z of a model (needed with ``resolves``).

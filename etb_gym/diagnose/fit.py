@@ -18,9 +18,9 @@ same residual; the fit starts from the best of them and the given start. On clos
 by the observer), and for a candidate declared ``profiled`` (candidates.py: a free play) in open loop too, each scan point is also tried with the model's nominal parameters re-solved by a few Gauss-Newton steps (a *profiled* scan, :func:`profile_step`): a
 free play acts to first order like a lower spring preload, which the calibration has already fitted, so along the
 play alone the residual only rises and the fit stopped at zero play (RSS equal to 12 digits) while the play and the
-preload moved together reach the truth's 40 % lower RSS (backlash 3B seed 1, closed loop; docs/diagnosis.md round 13).
+preload moved together reach the truth's 40 % lower RSS (backlash 3B seed 1, closed loop; docs/diagnosis-history.md round 13).
 A candidate that declares ``starts`` of its second parameter (a Stribeck velocity) is, when new, also fitted from a
-grid of starts (:func:`multi_start`; docs/diagnosis.md round 21).
+grid of starts (:func:`multi_start`; docs/diagnosis-history.md round 21).
 
 Scores: BIC = m_eff ln(RSS/m) + p ln(m_eff),  m_eff = m / tau_int.
 Cross-validation: samples in alternating time blocks form two folds; each fold's parameters are fitted
@@ -115,7 +115,7 @@ def fold_block_s(rd, block_s: float = FOLD_BLOCK_S) -> float:
     sensor offset shows) into one fold: the other fold's fit then wanders along the direction its samples
     cannot see (measured: sensor_offset_gain@1 random seed 1, closed loop, an offset of -0.41 deg fitted on
     all the data came out +0.57 deg on one fold of 0.5 s blocks, held-out -77 % against the nominal model;
-    +93 % with 0.1 s blocks, docs/diagnosis.md round 13)."""
+    +93 % with 0.1 s blocks, docs/diagnosis-history.md round 13)."""
     return min(block_s, FOLD_BLOCK_OBSERVER_S) if rd.residual == "observer" else block_s
 
 
@@ -161,7 +161,7 @@ SCAN_RATIO = 3.0      # ... at least this factor apart
 SCAN_MIN = 0.5        # ... and at least this many scale steps from the start (closer, the local fit is enough)
 PROFILE_STEPS = 3     # profiled scan: Gauss-Newton steps on the nominal parameters per scan point (Jacobian fixed) ...
 PROFILE_GAIN = 0.1    # ... while each lowers the RSS by at least this share (chosen, not tuned: on the backlash of
-                      # docs/diagnosis.md round 13 the chord steps lowered it by 54, 52, 55 and 11 %)
+                      # docs/diagnosis-history.md round 13 the chord steps lowered it by 54, 52, 55 and 11 %)
 
 
 def scan_offsets(lo: float, hi: float) -> list[float]:
@@ -284,7 +284,7 @@ def coscale_start(fun, spec: Spec, x0: np.ndarray, r0: np.ndarray, index: int, l
     Why: a torque-constant error's static part is a scale of every torque the drive balances, which the
     calibration has already fitted into preload, rate and friction; along delta alone the residual only rises
     (3B open s12: RSS 184688 -> 166368 at delta -0.00011 N m/A, the truth's d -0.0033), along the trade it
-    falls to 100369 at -0.001 and a 12-evaluation fit from there reaches 10199 (docs/diagnosis.md round 16).
+    falls to 100369 at -0.001 and a 12-evaluation fit from there reaches 10199 (docs/diagnosis-history.md round 16).
     Returns (x, r, number of evaluations)."""
     pts = [(0.0, x0, r0, float(r0 @ r0))]
     n = 0
@@ -334,7 +334,7 @@ def multi_start(fun, x0: np.ndarray, index: int, lo, hi, starts, max_nfev: int, 
     Why: a friction's stick-slip landscape has a basin per start, and the fit moves little from where it starts
     (stribeck_friction@2 3B closed s13: from the 1-D scan at the Stribeck velocity 0.05 rad/s the fit stopped at
     RSS 1.62e6 and stiction 0.144 N m; from stiction 0.14 and 0.2 rad/s it reached 0.78e6 at 0.112 N m, 0.21 rad/s,
-    the Coulomb level 0.2249 against the truth's 0.2238; docs/diagnosis.md round 21). The short fits' costs rank
+    the Coulomb level 0.2249 against the truth's 0.2238; docs/diagnosis-history.md round 21). The short fits' costs rank
     the basins only roughly (there the best full fit came from the third best short one), hence several full fits.
     Returns the least_squares result with the lowest cost and the number of evaluations, or (None, n)."""
     firsts = [0.0] + scan_offsets(lo[index] - x0[index] + 1e-9, hi[index] - x0[index] - 1e-9)
@@ -371,13 +371,13 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
     nominal parameter's, e.g. a free play's a lower preload, in open loop as in closed), or from ``x0`` where that
     is better.
 
-    Why the profiled scan is for closed loops only: it was measured there (docs/diagnosis.md round 13); on an
+    Why the profiled scan is for closed loops only: it was measured there (docs/diagnosis-history.md round 13); on an
     open-loop recording (tests/test_diagnosis_twin.py, a torque-constant error) it moved the fit to another
     optimum whose twin replayed a closed-loop recording at 0.0169 deg against the truth's 0.0130 at the same
     step (the test asks <= 1.1x), where the plain scan's twin passes. A free play in open loop needs it as in closed
     loop: on backlash@2 3B seed 6 (an asymmetric play, open loop) the plain scan stopped at play 0.0022 rad (dBIC
     -40, held-out +1.6 %: not accepted), the profiled one at 0.0111 rad (dBIC -630, held-out +25.6 %;
-    docs/diagnosis.md round 14)."""
+    docs/diagnosis-history.md round 14)."""
     if profile_scan is None:
         profile_scan = (any(rd.residual == "observer" for rd in data.recs)
                         or bool(spec.candidates and spec.candidates[-1].profiled))
@@ -474,7 +474,7 @@ def unseen_kept(spec: Spec, data: Data, fr: FitResult, x0, masks) -> np.ndarray:
     was pressed against only in the other fold's blocks) is moved freely by the fold fit, and the other fold
     then scores where the parameter went, not the effect (end_stop_compliance@2 3B s22 open: the closed stop
     moved 0.7 deg in the fold without a closed-stop push, held-out -68 % against the sensor gain's +90 %, which
-    was named; docs/diagnosis.md, round 22)."""
+    was named; docs/diagnosis-history.md, round 22)."""
     J = fr.jac
     x = np.array(fr.x, float)
     if J is None or np.ndim(J) != 2 or J.shape[1] != x.size:

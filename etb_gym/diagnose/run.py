@@ -170,7 +170,7 @@ def twin_replay(result, data: Data, nominal: F.FitResult | None = None) -> None:
     """report.json ``twin_replay``: on each closed-loop recording (observer residual) the exported twin's replay
     of the recorded voltage, open loop, as RMS and over the noise floor. The observer residual does not show how
     far the twin drifts on its own; this replay does, and it is about the size of the twin's miss on other
-    excitations (docs/diagnosis.md, "Why twins miss held-out recordings"). With ``nominal`` (the calibrated
+    excitations (docs/diagnosis-history.md, "Why twins miss held-out recordings"). With ``nominal`` (the calibrated
     nominal model) also its replay (``nominal_over_noise``) and ``worse_than_nominal``: the twin's replay RMS
     above the nominal's (report.md says so)."""
     obs = [i for i, rd in enumerate(data.recs) if rd.residual == "observer"]
@@ -250,7 +250,7 @@ def refit_at_twin_step(fr: F.FitResult, data: Data, n: int, shaped=None, note: d
     Why: the diagnosis fits at the coarsest step whose integration error stays below half the noise floor
     (:func:`choose_substeps`), and a few-per-mille bias of the friction and spring levels is how the fit absorbs
     that error; the twin replayed at its finer step then misses a held-out recording that is sensitive to those
-    levels. Measured (docs/diagnosis.md, round 20): a clean rig of another nameplate (random s14, open loop,
+    levels. Measured (docs/diagnosis-history.md, round 20): a clean rig of another nameplate (random s14, open loop,
     fitted at 5 substeps, twin at 20): levels within 0.4 % of the truth's, held-out 1.70x the noise; the same
     levels at 20 substeps cost 8407 on the training replay against the truth's 7123; refitted there, 7122 and
     the held-out at 1.01x.
@@ -349,7 +349,7 @@ def polish_replay(fr: F.FitResult, data: Data, note: dict | None = None, ref=Non
     noise sqrt(2 n). The observer fit then stopped short of its own optimum (a Fourier series' period, a
     nonlinear parameter, at a local one) and the replay found a better point of both; a fit on half of a closed
     loop extrapolates in angle to the other half's states, which is why the halves refuse it. Measured
-    (docs/diagnosis.md, round 22): detent_torque 3B seed 23 (outside the catalogue, a 6-harmonic series), halves
+    (docs/diagnosis-history.md, round 22): detent_torque 3B seed 23 (outside the catalogue, a 6-harmonic series), halves
     -294 % / +9 %, whole refit replay 16635 -> 5519, observer 5595 -> 5315 (noise 155): held-out twin 5.12x ->
     1.01x the noise; refused as before where only the replay gained (supply_drop@1 3B s23: observer +24, the
     refit's twin 2.91x against 2.32x; airflow_torque@1 random s23: +7, 14.7x against 13.7x).
@@ -433,7 +433,7 @@ def polish_shaped(fr: F.FitResult, ref, data: Data, masks=None) -> F.FitResult:
     Why: the table's penalized fit runs a few Gauss-Newton steps (its Jacobian at a coarser step) and takes the
     restart view's table where that scores better on the restart view's folds, and the formula was fitted before
     the table; the twin, replayed on another excitation, goes on from its own state as on the continuous replay.
-    Measured (docs/diagnosis.md, round 15): the twins of open-loop recordings with an electrical table predicted
+    Measured (docs/diagnosis-history.md, round 15): the twins of open-loop recordings with an electrical table predicted
     their held-out recording at 1.54x and 1.61x the noise before this fit. Kept when the penalized objective falls;
     on failure: ``fr``. ``masks``: fitted on those samples only (polish_replay's folds; the returned ``rss`` is
     on all of ``data``)."""

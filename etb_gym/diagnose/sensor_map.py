@@ -52,7 +52,7 @@ PASS_GAIN = 0.02              # ... while the replay's sum of squares falls by t
                               # calibrated spring and friction absorb part of a reading's bow (a static map over
                               # angle), so each pass learns a little more of it (measured: sensor_offset_gain@1
                               # 3B s18 open, the curve's depth at 45 deg -0.08, -0.10, -0.11, -0.12 deg over four
-                              # passes, held-out 9.6, 6.7, 5.7, 4.6; docs/diagnosis.md, round 21)
+                              # passes, held-out 9.6, 6.7, 5.7, 4.6; docs/diagnosis-history.md, round 21)
 
 assert MAX_TAPS <= MAX_FILTER_TAPS
 

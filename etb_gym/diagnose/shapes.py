@@ -27,7 +27,7 @@ hat-weighted time near them, :func:`visit_time_s`) are *anchored*: pulled to 0 w
 roughness row, so the twin falls back to the family's formula (or, for the generic tables, to the calibrated
 nominal model) where the recordings did not go. Beyond the visited range a family's table over angle does not
 return to the formula but holds formula + table at its value at the last visited knot (:func:`hold_rows`): a
-formula fitted to part of the stroke is not extrapolated (docs/diagnosis.md, round 14). The same holds for knots the recordings visited without seeing them:
+formula fitted to part of the stroke is not extrapolated (docs/diagnosis-history.md, round 14). The same holds for knots the recordings visited without seeing them:
 where the plate sits against a stop or in the spring's limp-home band a torque change does not move it, so a
 knot whose Jacobian column has less than ID_MIN of its table's median energy (first linearization of
 :func:`fit_penalized`) is anchored as well (measured: an airflow plateau's table, free at the 0 and 6 deg knots,
@@ -63,7 +63,7 @@ NEAR_ZERO = (0.02, 0.08)  # extra current knots near 0, as fractions of the visi
 OUTER_SPEED = 3.0        # speed tables get a last knot at this multiple of the fastest speed visited (anchored)
 STRIBECK_SPAN = 3e3      # the Stribeck table's knots reach this far below the top speed (0.033 rad/s at 100 rad/s:
                          # a rig's Stribeck velocity is 0.02-0.2 rad/s; at top / 300 the first knot, 0.33 rad/s,
-                         # left the whole drop in one interval; stribeck_friction@2 3B s22, docs/diagnosis.md round 22)
+                         # left the whole drop in one interval; stribeck_friction@2 3B s22, docs/diagnosis-history.md round 22)
 STRIBECK_FLOOR = 0.01    # ... but not below this speed (0.6 deg/s: the recordings' speeds are not resolved there; at
                          # top/3e3 = 0.0016 rad/s the table's lowest knots bent the closing level by -3 mN m and the
                          # twin went 6.3x -> 10.9x on stribeck_friction@2 random s22's closed-loop held-out recording)
@@ -240,7 +240,7 @@ def signed_knots(lo: float, hi: float, n: int) -> np.ndarray:
     """n knots from ``lo`` < 0 to ``hi`` > 0 with one at 0, the n - 1 intervals shared between the two sides in
     proportion to their extent (at least one each), so the spacing is about the same on both: a closed loop's
     current is nearly all of one sign, and half the knots on the side it hardly visits left 1.5 A between the
-    knots where it does (supply_drop@1 3B s15 closed; docs/diagnosis.md, round 21)."""
+    knots where it does (supply_drop@1 3B s15 closed; docs/diagnosis-history.md, round 21)."""
     m = max(n - 1, 2)
     k_lo = int(np.clip(round(m * -lo / (hi - lo)), 1, m - 1))
     g = np.concatenate([np.linspace(lo, 0.0, k_lo + 1), np.linspace(0.0, hi, m - k_lo + 1)])
@@ -340,7 +340,7 @@ def direction_split_term(term: MapTerm) -> MapTerm:
     opening m + d and closing m - d (n + 1 coefficients instead of 2 n; d = 0 is the symmetric table). A rig's
     friction may differ by direction (the return spring's preload loads the bearings one way; seals): with
     independent branches each direction's level is as rough as its shape, and the cross-validation's one weight
-    cannot keep a direction offset while smoothing the shape (docs/diagnosis-rounds/round24-e24friction.md)."""
+    cannot keep a direction offset while smoothing the shape (docs/diagnosis-history.md, round 24 e24friction)."""
     n = term.grid.size
     B = np.zeros((2 * n, n + 1))
     B[:n, :n] = np.eye(n)
@@ -497,7 +497,7 @@ def hold_rows(visit_s: np.ndarray, prof: np.ndarray) -> tuple[np.ndarray, np.nda
     table, at its value at the first / last visited knot for every knot beyond it (normalized units): a formula
     fitted on part of the stroke is not extrapolated where the recordings did not go (an angle-dependent
     friction's quadratic added 0.13 N m at the open stop, 65 % of the friction, where the data ended 12 deg
-    before; docs/diagnosis.md, round 14)."""
+    before; docs/diagnosis-history.md, round 14)."""
     n = prof.size
     seen = np.flatnonzero(np.asarray(visit_s[:n]) >= VISIT_MIN_S)
     held = np.zeros(n, bool)
@@ -811,7 +811,7 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refine
     # the table is fitted, and its roughness chosen, on the fit's view (every replay segment restarted at the
     # readings) and, on an open-loop recording, also on the replay that goes on from the model's own state
     # (model.Data.continuity): over restarted segments a wrong shape costs little, the spring's rate and preload
-    # can absorb it, and the cross-validation keeps the formula (docs/diagnosis.md, round 13). The fit with the
+    # can absorb it, and the cross-validation keeps the formula (docs/diagnosis-history.md, round 13). The fit with the
     # lower held-out error (on the fit's view, as the formula's) is taken.
     views = [data]
     if not data.continuity and any(rd.residual == "replay" for rd in data.recs):

@@ -6,7 +6,7 @@ family's formula by its law (a spring asymmetry's rate, an airflow polynomial), 
 value (shapes.hold_rows) or continued along its slope (closed_twin.continue_tables), a Fourier series in angle by
 its period, the generic tables of the unmodelled torque at 0 (the nominal model). None of this is evidence.
 
-Measured (docs/diagnosis-rounds/round24-h24opentwin.md): spring_asymmetry@2 random open seed 26 visited 5.8-87.4
+Measured (docs/diagnosis-history.md, round 24 h24opentwin): spring_asymmetry@2 random open seed 26 visited 5.8-87.4
 deg of a 0.9-88.5 deg stroke; the closed held-out recording holds the plate down to 3.1 deg, where the truth's
 closing spring hardens beyond the formula's straight continuation: 57 % of the held-out's time lies outside the
 training's states and holds 99 % of its squared error (twin 17.6x the noise there, 2.6x elsewhere).

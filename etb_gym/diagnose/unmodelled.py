@@ -563,7 +563,7 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
     # the families of every significant table, the dominant one's first: the generic tables cannot tell a friction
     # band in angle from a torque-constant profile when the current follows the motion (open loop), so the main
     # table alone may leave out the family that is there (angle_dependent_friction@1 random s22: the current's
-    # table dominated and only its families were tried; docs/diagnosis.md, round 22). The other tables' families
+    # table dominated and only its families were tried; docs/diagnosis-history.md, round 22). The other tables' families
     # are tried only when none of the main table's predicts the held-out folds to the noise (HELD_AT_NOISE).
     def tried(ids):
         return [a for a in (_try_family(cur, c, data, log) for c in ids) if a is not None and math.isfinite(a.heldout)]
@@ -1074,7 +1074,7 @@ def regrown(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series:
     reduction was scored) by SERIES_MIN_GAIN. Without it a 3-harmonic series of a doubled period became a
     1-harmonic series of the torque's own: detent_torque 3B open seed 26 (a sawtooth of 12.31 deg, six harmonics)
     ended as a sine of 12.29 deg, 0.0040 N m against the truth's 0.0071 N m peaks, twin 4.2x the noise on the
-    closed held-out recording (docs/diagnosis-rounds/round24-h24opentwin.md)."""
+    closed held-out recording (docs/diagnosis-history.md, round 24 h24opentwin)."""
     P = math.degrees(s.component.params.period_rad)
     for H in SERIES_HARMONICS:
         if H <= s.harmonics:
