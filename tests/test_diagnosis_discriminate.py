@@ -363,3 +363,18 @@ def test_a_ripple_per_ampere_takes_the_angle_tables_periodogram_as_second_estima
     weak = {"period_deg": 30.0, "periodic_r2": 0.1}
     assert U._periodogram({"angle": weak, "current": {}}, "current") == {}
     assert U._periodogram({"angle": angle}, "angle") is angle
+
+
+@pytest.mark.parametrize("z, za, zc, expected", [
+    (8.4, 1.1, -0.8, False),    # stribeck_friction@2 3B closed s27: two parts cancelling, no periodic torque
+    (3.5, 0.4, 0.3, False),     # torque_constant_error@2 random open s26
+    (2.0, 3.7, 4.5, True),      # current_ripple random closed s27: per ampere
+    (14.9, 16.7, 8.7, True),    # detent
+    (4.7, 3.3, 2.9, True),      # current ripple over an angle-dependent friction
+    (5.7, 4.2, 1.0, True),
+])
+def test_a_periodic_structure_is_a_torque_only_when_one_part_alone_carries_it(z, za, zc, expected):
+    """disturbance.one_part (round 24): the residual's periodic structure counts (significant; a series' start)
+    only when the torque of the angle or the one per ampere carries it alone; the measured cases' z values."""
+    from etb_gym.diagnose.disturbance import one_part
+    assert one_part(z, za, zc) is expected

@@ -323,11 +323,24 @@ PERIODIC_HARMONICS = 3
 PERIODIC_TRIALS = 240                # trial periods, log-spaced, then refined around the best
 PERIODIC_SUB = 0.9                   # a P / m that explains this share of the best z is the period
 PERIODIC_Z = 8.0                     # z of the periodic group's extra explained sum of squares that counts (Z_DETECT)
+PERIODIC_PART_Z = 2.5                # one part alone (a torque of the angle, or per ampere) must carry at least this z,
+PERIODIC_PART_SHARE = 0.5            # ... and this share of both parts' z: a torque periodic in angle is one or the other
+                                     # (or both, collinear when the current follows the angle); a joint z that neither
+                                     # part carries is two parts cancelling along the recording, not a periodic torque
+                                     # (round 24: stribeck_friction@2 3B closed s27 z 8.4, alone 1.1 / -0.8; a current
+                                     # ripple closed s27 z 2.0, alone 3.7 / 4.5; detent / ripple cases z 4.7-14.9, the
+                                     # stronger part 3.3-16.7)
 
 
 def _poly(x: np.ndarray, deg: int = 2) -> np.ndarray:
     c = (x - float(np.mean(x))) / max(float(np.ptp(x)), 1e-12)
     return np.stack([c ** k for k in range(1, deg + 1)], axis=1)
+
+
+def one_part(z: float, z_angle: float, z_current: float) -> bool:
+    """Does one part alone (a torque of the angle, or one per ampere) carry a periodic structure of joint z-score
+    ``z``: its z at least PERIODIC_PART_Z and PERIODIC_PART_SHARE of ``z``?"""
+    return bool(max(z_angle, z_current) >= max(PERIODIC_PART_Z, PERIODIC_PART_SHARE * z))
 
 
 def periodic_structure(plant, sensor, data, omega_o: float | None = None) -> dict | None:
@@ -341,8 +354,9 @@ def periodic_structure(plant, sensor, data, omega_o: float | None = None) -> dic
     left variance and correlation time (fit.integrated_time), as a z-score against chi^2(q):
     z = (dS - q) / sqrt(2 q), maximized over P within PERIODIC_PERIODS_DEG with PERIODIC_CYCLES cycles over the
     visited angles. Returns period_deg, z (both parts), z_angle and z_current (each part alone at that period),
-    current_proportional (the part per ampere explains more than the part alone), significant (z >=
-    PERIODIC_Z), or None when too few samples move steadily or the model cannot be simulated."""
+    current_proportional (the part per ampere explains more than the part alone), one_part (one part alone carries
+    the structure: PERIODIC_PART_Z and PERIODIC_PART_SHARE of z), significant (z >= PERIODIC_Z and one_part),
+    or None when too few samples move steadily or the model cannot be simulated."""
     from .fit import integrated_time
     from .observer import observe
     rows = []
@@ -420,4 +434,5 @@ def periodic_structure(plant, sensor, data, omega_o: float | None = None) -> dic
                 break
     za, zc = gain(P, ("angle",)), gain(P, ("current",))
     return {"period_deg": P, "z": float(zb), "z_angle": float(za), "z_current": float(zc),
-            "current_proportional": bool(zc > za), "significant": bool(zb >= PERIODIC_Z), "cycles": span / P}
+            "current_proportional": bool(zc > za), "one_part": (one := one_part(zb, za, zc)),
+            "significant": bool(zb >= PERIODIC_Z and one), "cycles": span / P}
