@@ -570,7 +570,11 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
     first = [c for c in family_of_term.get(dom[0], ()) if c not in named]
     rest = [c for c in dict.fromkeys(c for t in dom[1:] for c in family_of_term.get(t, ())) if c not in named and c not in first]
     alts = tried(first)
-    if rest and not any(a.heldout <= HELD_AT_NOISE for a in alts):
+    # in a closed loop the current follows the angle, so a table over the current and one over the angle describe
+    # the same training recording (airflow_torque@1 3B closed s29: shaft_flux_loss's current table at 1.25 took it,
+    # the angle table's families were not tried, the twin 8.4x on the open held-out): every significant table's
+    # families are tried there, whatever the first ones predicted
+    if rest and (resolves is not None or not any(a.heldout <= HELD_AT_NOISE for a in alts)):
         alts += tried(rest)
     if not alts:
         return None
