@@ -378,3 +378,26 @@ def test_a_periodic_structure_is_a_torque_only_when_one_part_alone_carries_it(z,
     only when the torque of the angle or the one per ampere carries it alone; the measured cases' z values."""
     from etb_gym.diagnose.disturbance import one_part
     assert one_part(z, za, zc) is expected
+
+
+def test_in_a_closed_loop_every_significant_tables_families_are_alternatives(monkeypatch):
+    """unmodelled.catalogue_alternative (round 24): the second table's families are tried when the first table's
+    predict the folds near the noise only in a closed loop (``resolves`` given), where the current follows the angle
+    (airflow_torque@1 3B closed s29 was named shaft_flux_loss, its twin 8.4x)."""
+    from etb_gym.diagnose import unmodelled as U
+    tried = []
+
+    def fake(cur, cid, data, log):
+        tried.append(cid)
+        return U.FamilyAlternative(cid, _Alt(), None, 1.0 if cid == "shaft_flux_loss" else 0.9, 1.0)
+
+    monkeypatch.setattr(U, "_try_family", fake)
+    monkeypatch.setattr(U, "_rms_deg", lambda spec, x, data: 1.0 if x is _Cur.x else 0.5)
+    fam = {"unmodelled_current": ("shaft_flux_loss",), "unmodelled_angle": ("airflow_torque",)}
+    g = _stub_generic(["unmodelled_current", "unmodelled_angle"], 1.0)
+    alt = U.catalogue_alternative(g, _Cur(), fam, None, lambda fr: False, log=lambda *a: None)
+    assert tried == ["shaft_flux_loss"] and alt.id == "shaft_flux_loss"     # open loop: at the noise, enough
+    tried.clear()
+    alt = U.catalogue_alternative(g, _Cur(), fam, None, lambda fr: False, log=lambda *a: None,
+                                  resolves=lambda fr: True)
+    assert tried == ["shaft_flux_loss", "airflow_torque"] and alt.id == "airflow_torque"
