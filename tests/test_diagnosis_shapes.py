@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from diagnose_stubs import swing_data
 from etb_gym import make_plant
 from etb_gym.components import effects as fx
 from etb_gym.components.effects_maps import table_lookup
@@ -282,13 +283,7 @@ def test_equation_error_seed_finds_a_current_ripple_without_simulating():
 
 def _part_of_the_stroke():
     """3 s of data in which the plate stays within 10-30 deg (the tables' knots elsewhere are never visited)."""
-    from etb_gym.diagnose.model import prepare
-    from etb_gym.recordings import Recording
-    t = np.arange(3000) * 1e-3
-    ang = 20.0 + 10.0 * np.sin(2 * np.pi * 0.5 * t)
-    rec = Recording(name="part.csv", t_s=t, voltage_V=np.full(t.size, 2.0), angle_deg=ang, current_A=None,
-                    supply_V=None)
-    return prepare([rec], 12.0)
+    return swing_data(20.0, 10.0, "part.csv")
 
 
 def test_knots_the_recordings_did_not_visit_are_anchored_to_the_formula():

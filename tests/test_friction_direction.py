@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from diagnose_stubs import swing_data
 from etb_gym import make_plant
 from etb_gym.components import effects_maps as mx
 from etb_gym.diagnose import shapes as S
@@ -17,13 +18,7 @@ def _speed_term(n=6):
 
 
 def _data():
-    from etb_gym.diagnose.model import prepare
-    from etb_gym.recordings import Recording
-    t = np.arange(3000) * 1e-3
-    ang = 40.0 + 20.0 * np.sin(2 * np.pi * 0.5 * t)
-    rec = Recording(name="swing.csv", t_s=t, voltage_V=np.full(t.size, 2.0), angle_deg=ang, current_A=None,
-                    supply_V=None)
-    return prepare([rec], 12.0)
+    return swing_data(40.0, 20.0)
 
 
 def test_the_split_table_is_a_shared_shape_plus_a_direction_offset():

@@ -563,17 +563,16 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
     # the families of every significant table, the dominant one's first: the generic tables cannot tell a friction
     # band in angle from a torque-constant profile when the current follows the motion (open loop), so the main
     # table alone may leave out the family that is there (angle_dependent_friction@1 random s22: the current's
-    # table dominated and only its families were tried; docs/diagnosis-history.md, round 22). The other tables' families
-    # are tried only when none of the main table's predicts the held-out folds to the noise (HELD_AT_NOISE).
+    # table dominated and only its families were tried; docs/diagnosis-history.md, round 22). In open loop the other
+    # tables' families are tried only when none of the main table's predicts the held-out folds to the noise
+    # (HELD_AT_NOISE); in a closed loop (``resolves``) always, since the current follows the angle and a table over
+    # the one describes the training recording as well as one over the other (airflow_torque@1 3B closed s29:
+    # shaft_flux_loss's current table at 1.25 took it, the angle table's families untried, the twin 8.4x).
     def tried(ids):
         return [a for a in (_try_family(cur, c, data, log) for c in ids) if a is not None and math.isfinite(a.heldout)]
     first = [c for c in family_of_term.get(dom[0], ()) if c not in named]
     rest = [c for c in dict.fromkeys(c for t in dom[1:] for c in family_of_term.get(t, ())) if c not in named and c not in first]
     alts = tried(first)
-    # in a closed loop the current follows the angle, so a table over the current and one over the angle describe
-    # the same training recording (airflow_torque@1 3B closed s29: shaft_flux_loss's current table at 1.25 took it,
-    # the angle table's families were not tried, the twin 8.4x on the open held-out): every significant table's
-    # families are tried there, whatever the first ones predicted
     if rest and (resolves is not None or not any(a.heldout <= HELD_AT_NOISE for a in alts)):
         alts += tried(rest)
     if not alts:
@@ -1137,14 +1136,14 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: d
         dt = _periodogram(g.shape, key)
         Pt = dt.get("period_deg")
         agree = bool(Pt and dt.get("periodic_r2", 0.0) >= PROBE_R2 and abs(Pt - Ps) <= PERIOD_AGREE * Ps)
+        which = "angle" if dt is g.shape.get("angle") else key      # the table whose periodogram agrees
         if agree and best.heldout <= (1.0 + SERIES_TOL) * g.heldout:
             # two estimates of the period agree, the series' fit (started from the residual's) and the table's own
             # periodogram that fell short of MIN_CYCLES: the period is established as when the tables show it, and
             # the series replaces the tables as below (it carries the period beyond the visited angles; current_ripple
             # random closed s27: series held-out 0.655, tables 0.669)
             log(f"  the Fourier series (held-out {best.heldout:.3g}) does not beat the tables ({g.heldout:.3g}) by "
-                f"{SERIES_MIN_GAIN:.0%}, but its period {Ps:.2f} deg and the {'angle' if dt is g.shape.get('angle') else key} "
-                f"table's {Pt:.2f} deg agree")
+                f"{SERIES_MIN_GAIN:.0%}, but its period {Ps:.2f} deg and the {which} table's {Pt:.2f} deg agree")
             hint = {**hint, "table_period_deg": float(Pt), "table_cycles": float(dt.get("cycles", 0.0))}
         elif agree and hint.get("one_part", True):
             # the tables stay in the twin (the series does worse), but the period is reported: only where one part of
@@ -1157,9 +1156,8 @@ def with_series(g: Generic, nominal: F.FitResult, data: Data, log=print, hint: d
                                                            "a torque over angle")
                                 + f"; periodic in angle with period {Ps:.1f} deg"
                                 + (", in proportion to the current" if key == "current" else "")
-                                + f" (a Fourier series' fit and the {'angle' if dt is g.shape.get('angle') else key} "
-                                f"table's periodogram, {Pt:.1f} deg over {dt.get('cycles', 0):.1f} "
-                                "cycles, agree; the tables stay in the twin)")
+                                + f" (a Fourier series' fit and the {which} table's periodogram, {Pt:.1f} deg over "
+                                f"{dt.get('cycles', 0):.1f} cycles, agree; the tables stay in the twin)")
             log(f"  the Fourier series (held-out {best.heldout:.3g}) does not beat the tables ({g.heldout:.3g}), "
                 f"but its period {Ps:.2f} deg and the table's {Pt:.2f} deg agree: the period is reported")
             return dataclasses.replace(g, shape=shape)
