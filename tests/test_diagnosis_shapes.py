@@ -541,37 +541,6 @@ def test_a_reduced_series_grows_its_harmonics_back_at_its_own_period(monkeypatch
     assert U.regrown(one, None, None, quiet) is one and calls == [(12.3, 3, False, False, 1), (12.3, 6, False, False, 1)]
 
 
-def test_the_series_harmonics_are_the_fewest_that_hold_on_the_folds_with_the_period_held(monkeypatch):
-    """unmodelled.fewest_harmonics: of 1 (SERIES_FEWER, started from the lower harmonics), 3 and 6 harmonics,
-    each scored by its held-out error with the period held, a larger series is kept only when it lowers the
-    smaller one's by SERIES_MIN_GAIN (detent_torque random open s28: narrow pulses kept at 3 harmonics by a
-    period-free score, twin 20x the noise)."""
-    from types import SimpleNamespace
-
-    def series(H, heldout=7.0):
-        return SimpleNamespace(harmonics=H, heldout=heldout, parts=("angle",),
-                               component=SimpleNamespace(params=SimpleNamespace(period_rad=math.radians(18.6))))
-    calls = []
-
-    def fake_fit(nominal, data, P, parts, H, start, log, period_free=True, heldout=True, grown_from=None):
-        calls.append((round(P, 6), H, sorted(start), heldout, grown_from.harmonics))
-        return series(H, math.inf)
-    scores = {1: 4.0, 3: 3.15, 6: 2.73}
-    monkeypatch.setattr(U, "fit_series", fake_fit)
-    monkeypatch.setattr(U, "_coefficients", lambda s: {"cos_Nm_1": 1.0, "cos_Nm_3": 2.0, "sin_Nm_2": 3.0})
-    monkeypatch.setattr(U, "heldout_period_held", lambda s, data: scores[s.harmonics])
-    quiet = lambda *a: None  # noqa: E731
-    three, six = series(3), series(6)
-    s = U.fewest_harmonics(three, six, None, None, quiet)
-    assert s is six and s.heldout == 2.73
-    assert calls == [(18.6, 1, ["cos_Nm_1"], False, 3)]
-    scores.update({1: 3.0, 3: 2.9, 6: 2.86})         # neither growth gains SERIES_MIN_GAIN: one harmonic
-    assert U.fewest_harmonics(series(3), series(6), None, None, quiet).harmonics == 1
-    scores.update({1: math.inf, 3: math.inf, 6: math.inf})    # nothing scores with its period held: as before
-    s = series(3, 7.0)
-    assert U.fewest_harmonics(s, None, None, None, quiet) is s and s.heldout == 7.0
-
-
 def test_a_series_is_described_at_its_own_shortest_period():
     """unmodelled.repeats_every / Series.describe: a series of P whose energy lies in every m-th harmonic is the
     series of P / m, the period reported (current_ripple 3B open s28: a 6-harmonic series of 45.11 deg, 99.9 % of

@@ -1085,9 +1085,10 @@ def _series_from(P: float, nominal: F.FitResult, data: Data, log=print):
             best = both
     q = best.component.params
     more = fit_series(nominal, data, math.degrees(q.period_rad), best.parts, H1, _coefficients(best), log,
-                      heldout=False, grown_from=best)
+                      grown_from=best)
     ref = more if more is not None and more.fit.rss < best.fit.rss else best   # the fundamental's closest fit
-    best = fewest_harmonics(best, more, nominal, data, log)
+    if more is not None and more.heldout < (1.0 - SERIES_MIN_GAIN) * best.heldout:
+        best = more
     sub = subharmonic(ref, nominal, data, log)
     if sub is not None:
         log(f"  the period is a harmonic of the torque's: the series of {sub.describe()['period_deg']:.2f} deg "
@@ -1101,50 +1102,6 @@ def _series_from(P: float, nominal: F.FitResult, data: Data, log=print):
             sub = red
         best = red
     return best, sub, P
-
-
-SERIES_FEWER = (1,)     # harmonics tried below SERIES_HARMONICS[0]: a torque close to a sine is one harmonic
-
-
-def fewest_harmonics(s: Series, more: Series | None, nominal: F.FitResult, data: Data, log=print) -> Series:
-    """The smallest series that holds on the held-out folds: of ``s`` (SERIES_HARMONICS[0] harmonics), the series
-    of SERIES_FEWER harmonics started from its lower harmonics, and ``more`` (SERIES_HARMONICS[1], grown from
-    ``s``), all scored with their fitted period held (:func:`heldout_period_held`, as :func:`reduced`,
-    :func:`regrown` and :func:`subharmonic` score theirs), a larger one kept when it lowers the smaller one's
-    held-out error by SERIES_MIN_GAIN. Scored with the period free (one Gauss-Newton step on a fold moves the
-    period too) and without the fit's roughness weights for ``s`` but with them for ``more``, the growth lost
-    where it was the torque's shape: detent_torque random open s28 (narrow pulses, harmonic 4 at 15 % of the
-    first) kept 3 harmonics, held-out 11.4 against 13.2; period held 3.15 against 2.73. Sets the series'
-    ``heldout`` to that score."""
-    P = math.degrees(s.component.params.period_rad)
-    c = _coefficients(s)
-    h0 = s.heldout
-    tries = []
-    for H in SERIES_FEWER:
-        if H >= s.harmonics:
-            continue
-        start = {k: v for k, v in c.items() if int(k.rpartition("_")[2]) <= H}
-        r = fit_series(nominal, data, P, s.parts, H, start, log, heldout=False, grown_from=s)
-        if r is not None:
-            tries.append(r)
-    tries.append(s)
-    if more is not None:
-        tries.append(more)
-    out = None
-    for r in sorted(tries, key=lambda r: r.harmonics):
-        r.heldout = heldout_period_held(r, data)
-        if not math.isfinite(r.heldout):
-            continue
-        keep = out is None or r.heldout < (1.0 - SERIES_MIN_GAIN) * out.heldout
-        log(f"  Fourier series in angle ({' + '.join(r.parts)}, {r.harmonics} harmonics): period "
-            f"{math.degrees(r.component.params.period_rad):.2f} deg, held-out {r.heldout:.3g} (period held)"
-            + (" (kept)" if keep else ""))
-        if keep:
-            out = r
-    if out is None:            # no series could be scored with its period held: the series as scored before
-        s.heldout = h0
-        return s
-    return out
 
 
 def regrown(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series:
