@@ -539,3 +539,35 @@ def test_a_reduced_series_grows_its_harmonics_back_at_its_own_period(monkeypatch
     scores.update({3: 99.0, 6: 96.0})                # no gain: the reduced series stays
     calls.clear()
     assert U.regrown(one, None, None, quiet) is one and calls == [(12.3, 3, False, False, 1), (12.3, 6, False, False, 1)]
+
+
+def test_a_series_is_described_at_its_own_shortest_period():
+    """unmodelled.repeats_every / Series.describe: a series of P whose energy lies in every m-th harmonic is the
+    series of P / m, the period reported (current_ripple 3B open s28: a 6-harmonic series of 45.11 deg, 99.9 % of
+    its energy in harmonic 3 of a 14.94 deg ripple, was reported at 45.1 deg); the exported series is unchanged."""
+    from types import SimpleNamespace
+
+    from etb_gym.components.effects_periodic import PeriodicAngleTorque
+    cos_a = (2.9e-05, 2.2e-04, -5.03e-03, -6.5e-05, -6.8e-05, 1.26e-04)
+    sin_a = (-3.2e-05, 2.1e-05, 6.87e-03, 2.0e-04, 2.9e-05, 1.21e-04)
+    z = (0.0,) * 6
+    q = PeriodicAngleTorque.Params(period_rad=math.radians(45.11), cos_Nm=z, sin_Nm=z, cos_Nm_per_A=cos_a,
+                                   sin_Nm_per_A=sin_a)
+    assert U.repeats_every(q, ("current",)) == 3
+    class Fixed(U.Series):                           # the fitted series' coefficients without a fit
+        component = property(lambda self: SimpleNamespace(params=q))
+    d = Fixed(None, ("current",), 6, 8.8).describe()
+    assert d["period_deg"] == pytest.approx(45.11 / 3) and d["series_period_deg"] == pytest.approx(45.11)
+    assert d["repeats_every"] == 3 and "15.04 deg" in d["words"] and "every 3rd" in d["words"]
+    assert d["harmonic_share_current"] < 0.01          # a sine of the shortest period
+    saw = tuple((-1.0) ** (h + 1) / h * 1e-3 for h in range(1, 7))      # a sawtooth: every harmonic
+    q2 = PeriodicAngleTorque.Params(period_rad=math.radians(18.6), cos_Nm=z, sin_Nm=saw, cos_Nm_per_A=z,
+                                    sin_Nm_per_A=z)
+    assert U.repeats_every(q2, ("angle",)) == 1
+    six = tuple(1e-3 if h == 6 else 0.0 for h in range(1, 7))           # only harmonic 6: P / 6 (>= 6 deg)
+    q3 = PeriodicAngleTorque.Params(period_rad=math.radians(60.0), cos_Nm=six, sin_Nm=z, cos_Nm_per_A=z,
+                                    sin_Nm_per_A=z)
+    assert U.repeats_every(q3, ("angle",)) == 6
+    q4 = PeriodicAngleTorque.Params(period_rad=math.radians(30.0), cos_Nm=six, sin_Nm=z, cos_Nm_per_A=z,
+                                    sin_Nm_per_A=z)
+    assert U.repeats_every(q4, ("angle",)) == 3         # 30 / 6 = 5 deg is below PERIODS_DEG: 30 / 3

@@ -774,14 +774,17 @@ class Series:
         in N m/A), waveform (share of the energy beyond the fundamental) and the words for the report."""
         q = self.component.params
         th = np.linspace(0.0, 2 * math.pi, 721)
-        out = {"period_deg": math.degrees(q.period_rad), "harmonics": self.harmonics, "parts": list(self.parts),
+        m = repeats_every(q, self.parts)
+        out = {"period_deg": math.degrees(q.period_rad) / m, "harmonics": self.harmonics, "parts": list(self.parts),
                "heldout": self.heldout}
+        if m > 1:
+            out.update(series_period_deg=math.degrees(q.period_rad), repeats_every=m)
         words = []
         for part, (fc, fs) in SERIES_PARTS.items():
             c, s = np.asarray(getattr(q, fc)), np.asarray(getattr(q, fs))
             v = sum(c[h] * np.cos((h + 1) * th) + s[h] * np.sin((h + 1) * th) for h in range(c.size))
             amp = 0.5 * float(np.max(v) - np.min(v))
-            e = c ** 2 + s ** 2
+            e = (c ** 2 + s ** 2)[m - 1::m]          # the harmonics of the shortest period
             share = float(e[1:].sum() / max(e.sum(), 1e-300))
             out[f"amplitude_{'Nm' if part == 'angle' else 'Nm_per_A'}"] = amp
             out[f"harmonic_share_{part}"] = share
@@ -793,9 +796,39 @@ class Series:
         out["current_words"] = ("proportional to the current" if self.parts == ("current",) else
                                 "not proportional to the current" if self.parts == ("angle",) else
                                 "with a part of the angle alone and a part proportional to the current")
-        out["words"] = (f"a Fourier series in angle, period {out['period_deg']:.2f} deg, {self.harmonics} "
-                        f"harmonics, {out['current_words']}: " + "; ".join(words))
+        out["words"] = (f"a Fourier series in angle, period {out['period_deg']:.2f} deg, "
+                        + (f"{self.harmonics} harmonics" if m == 1 else
+                           f"{self.harmonics // m} harmonics (the series of {out['series_period_deg']:.2f} deg and "
+                           f"{self.harmonics} harmonics holds only every {m}{'nd' if m == 2 else 'rd' if m == 3 else 'th'})")
+                        + f", {out['current_words']}: " + "; ".join(words))
         return out
+
+
+def repeats_every(q, parts: tuple) -> int:
+    """The series' own shortest period as a divisor m of its period (1 when none): the product of the factors of
+    REDUCE_BY (repeatedly) for which, in every fitted part, the harmonics that are not multiples of m hold at most
+    REDUCE_SHARE of the part's energy. A series of P whose energy lies in every m-th harmonic is, up to that
+    share, the series of P / m: the period the description reports. current_ripple 3B open s28 (a sine per
+    ampere of 14.94 deg) was kept as a 6-harmonic series of 45.11 deg with 99.9 % of its energy in harmonic 3
+    (its refit at 15.04 deg did worse on the folds) and reported at 45.1 deg; its shortest period is 15.04 deg.
+    ``q``: PeriodicAngleTorqueParams."""
+    fields = [f for part in parts for f in SERIES_PARTS[part]]
+    e = {part: sum(np.asarray(getattr(q, f), float) ** 2 for f in SERIES_PARTS[part]) for part in parts}
+    if not fields or not all(float(v.sum()) > 0 for v in e.values()):
+        return 1
+    m = 1
+    while True:
+        for k in REDUCE_BY:
+            H = next(iter(e.values())).size
+            if H < k or math.degrees(q.period_rad) / (m * k) < PERIODS_DEG[0]:
+                continue
+            off = [float(v[[(h + 1) % k != 0 for h in range(H)]].sum()) for v in e.values()]
+            if all(o <= REDUCE_SHARE * float(v.sum()) for o, v in zip(off, e.values())):
+                e = {part: v[k - 1::k] for part, v in e.items()}
+                m *= k
+                break
+        else:
+            return m
 
 
 def fit_series(nominal: F.FitResult, data: Data, period_deg: float, parts: tuple, harmonics: int,
