@@ -351,6 +351,43 @@ def test_a_uniform_shift_at_both_stops_is_a_reading_offset(closed_shift, open_sh
     assert D.uniform_shift(delta, phi, phi > np.radians(90.0)) is None      # one part alone: no evidence
 
 
+@pytest.mark.parametrize("closed_left, open_left, expect", [
+    (0.0, 0.0, None),                      # the stop's fit shifts the angle by one amount at both stops: the map stands
+    (0.0, 2.3, "end_stop_compliance"),     # it acts differently at the two stops: a stop's own effect
+])
+def test_a_leading_map_stands_against_a_stop_that_only_shifts_the_reading(monkeypatch, closed_left, open_left,
+                                                                          expect):
+    """The map leading, the stop's gain all in its contact and no significant gain outside it: the stop is not
+    named when its fit moves the angle by one amount at both stops and the map's fit does the same there (measured:
+    sensor_offset_gain@1 3B s28 open, the stop's change +4.3 noise units at both stops, named end_stop_compliance
+    before round 25)."""
+    rng = np.random.default_rng(1)
+    phi = np.radians(np.r_[np.full(200, -0.05), np.linspace(5.0, 85.0, 600), np.full(400, 90.1)])
+    at_stop = (phi < 0.0) | (phi > np.radians(90.0))
+    r0 = np.where(at_stop, 4.3, 1.0)
+    local = np.where(at_stop, 0.1 * rng.standard_normal(phi.size), 1.0)
+    local[:200] += closed_left
+    local[800:] += open_left
+    leader = np.where(at_stop, 0.1 * rng.standard_normal(phi.size), 1.0)
+    res = {"ref": r0, "sensor_offset_gain": leader, "end_stop_compliance": local}
+
+    class Fit:
+        def __init__(self, name):
+            self.x, self.tau_int = name, 1.0
+            self.rss = float(res[name] @ res[name])
+
+    stop = fx.EndStopCompliance(closed_rad=0.0, open_rad=math.radians(90.0), nominal_closed_rad=math.radians(-0.5),
+                                nominal_open_rad=math.radians(91.0)).params
+    monkeypatch.setattr(D, "angle_parts", lambda fr, data: (res[fr.x], phi))
+    monkeypatch.setattr(D, "effect_params", lambda fr, cid: stop)
+    fits = {c: Fit(c) for c in res}
+    screened = [(-75, "sensor_offset_gain", fits["sensor_offset_gain"]),
+                (-54, "end_stop_compliance", fits["end_stop_compliance"])]
+    ev = D.region_choice(fits["ref"], screened, "sensor_offset_gain", None, ["sensor_offset_gain",
+                         "end_stop_compliance"], 10.0, log=lambda *a: None)
+    assert (ev["winner"] if ev else None) == expect
+
+
 def test_a_ripple_per_ampere_takes_the_angle_tables_periodogram_as_second_estimate():
     """unmodelled._periodogram: a residual's period found per ampere (key current) is checked against the current
     table's periodogram when it has one, else the angle table's: in a closed loop the current follows the angle and

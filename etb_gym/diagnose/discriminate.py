@@ -413,14 +413,14 @@ def region_choice(ref: F.FitResult, screened: list, leader: str, data: Data, pas
         m_out = int(np.count_nonzero(~inside)) / tau
         z = m_out * math.log(max(out_l, 1e-300) / max(out_g, 1e-300)) if m_out > 0 else 0.0
         shift = None
+        if z < bic_min and CANDIDATES[glob].component is None and (local_leads or share >= REGION_SHARE):
+            shift = uniform_shift(rl - r0, phi, inside, log)            # a reading map: does L only shift it?
+            if shift is not None and uniform_shift(rg - r0, phi, inside) is None:
+                shift = None                                             # the map does not do the same there
         if local_leads:
-            if z < bic_min and CANDIDATES[glob].component is None:      # a reading map: does L only shift it?
-                shift = uniform_shift(rl - r0, phi, inside, log)
-                if shift is not None and uniform_shift(rg - r0, phi, inside) is None:
-                    shift = None                                         # the map does not do the same there
             ok, winner, loser = z >= bic_min or shift is not None, glob, loc
-        else:
-            ok, winner, loser = share >= REGION_SHARE and z < bic_min, loc, glob
+        else:                   # the map leads: the local family is not named for a shift the map makes too
+            ok, winner, loser = share >= REGION_SHARE and z < bic_min and shift is None, loc, glob
         log(f"  where the gain lives: {loc} {share:.0%} of its drop inside its region ({int(inside.sum())} samples); "
             f"outside, RSS {glob} {out_g:.0f} against {loc} {out_l:.0f} (dBIC-like {z:+.1f}) -> "
             + (f"{loc} moves the angle by one amount in each part of its region "
