@@ -88,8 +88,34 @@ def test_a_catalogue_family_with_its_table_wins_over_generic_tables_of_its_kind(
     alt = U.catalogue_alternative(_stub_generic(["unmodelled_angle", "unmodelled_voltage"], 1.0, periodic), _Cur(), fam,
                                   None, lambda fr: significant, log=lambda *a: None)
     assert (alt.id if alt else None) == expect
-    # the main table's families (one of them predicts the held-out folds to the noise: the others are not tried)
-    assert tried == ([] if periodic else ["airflow_torque", "angle_dependent_friction"])
+    # the main table's families (one of them predicts the held-out folds to the noise: the others are not tried);
+    # a periodic angle table: only the friction families (a friction band may look periodic in the generic angle
+    # torque), kept only when better than the generic tables (here equal: not kept)
+    assert tried == (["angle_dependent_friction"] if periodic else ["airflow_torque", "angle_dependent_friction"])
+
+
+@pytest.mark.parametrize("h_table, expect", [(0.5, "angle_dependent_friction"), (1.0, None), (3.0, None)])
+def test_a_friction_band_that_looks_periodic_in_the_generic_angle_torque_is_tried_as_friction(monkeypatch, h_table,
+                                                                                               expect):
+    """Round 25 (i25friction): the generic tables have no friction over angle, so a friction band can look periodic
+    in their angle torque (angle_dependent_friction@1 random open s28, 33 deg). Then only the friction families of
+    the significant tables are tried (not airflow, not the current's), and one is kept only when its held-out error
+    is below the generic tables' (no slack)."""
+    from etb_gym.diagnose import unmodelled as U
+    tried = []
+
+    def fake_try(cur, cid, data, log):
+        tried.append(cid)
+        return U.FamilyAlternative(cid, _Alt(), None, h_table, h_table)
+
+    monkeypatch.setattr(U, "_try_family", fake_try)
+    monkeypatch.setattr(U, "_rms_deg", lambda spec, x, data: 1.0 if x is _Cur.x else 0.5)
+    fam = {"unmodelled_angle": ("airflow_torque", "angle_dependent_friction"),
+           "unmodelled_current": ("shaft_flux_loss",), "unmodelled_speed": ("stribeck_friction",)}
+    alt = U.catalogue_alternative(_stub_generic(["unmodelled_angle", "unmodelled_current", "unmodelled_speed"], 1.0,
+                                                True), _Cur(), fam, None, lambda fr: True, log=lambda *a: None)
+    assert (alt.id if alt else None) == expect
+    assert tried == ["angle_dependent_friction", "stribeck_friction"]
 
 
 def test_the_other_significant_tables_families_are_tried_when_the_main_tables_leave_the_noise(monkeypatch):
