@@ -21,7 +21,7 @@ class _Runner:
         for t in tasks:
             x0 = np.array(t[4], float)
             from_nameplate = len(t[3]) > 0 and not np.any(x0[:3])
-            rss = (90.0 if not np.any(x0[:3]) else 100.0) if not t[3] else (60.0 if from_nameplate else 99.0)
+            rss = 100.0 if not t[3] else (60.0 if from_nameplate else 99.0)
             out.append((x0, rss, 1000, None, 1, 1.0, None))
         return out
 
@@ -41,10 +41,9 @@ def _cur(base):
 def test_a_closed_loop_screens_each_candidate_from_the_nameplates_levels_too_and_keeps_the_better_fit():
     ctx = _ctx("observer")
     ref, screened = E._screen(ctx, _cur(ctx.base), ["airflow_torque"], 0)
-    assert len(ctx.runner.tasks) == 4            # the current model and the candidate, each from both starts
+    assert len(ctx.runner.tasks) == 3            # the current model, the candidate from its levels, from the nameplate's
     (d, cid, fr), = screened
     assert cid == "airflow_torque" and fr.rss == 60.0 and not np.any(fr.x[:len(fr.spec.nominal)])
-    assert ref.rss == 90.0                       # the reference: the current model's better start
 
 
 def test_an_open_loop_screens_from_the_current_models_levels_only():

@@ -230,10 +230,7 @@ def nameplate_starts(data: Data) -> bool:
     move. Measured (round 25, l25closed): airflow_torque@1 random closed seed 29 (a plateau of +0.014 N m
     from 60 deg; the calibrated spring rate -4 % of the truth's): from the calibrated levels the airflow fit
     stays at 0 (observer cost 8685 -> 8670, screening dBIC +11, nothing named, twin 17.6x); from the nameplate's
-    it reaches 6587 (the rate 6.6 % higher) and its twin predicts the open-loop held-out at 5.9x. The current
-    model is refitted from the nameplate's levels too and the better of its two fits is the screening's reference:
-    a better optimum of the nominal levels alone is not the candidate's gain (without it, a second round credited
-    angle_dependent_friction with dBIC -1826 where the current model itself went 6617 -> 5835)."""
+    it reaches 6587 (the rate 6.6 % higher) and its twin predicts the open-loop held-out at 5.9x."""
     return bool(data.recs) and all(rd.residual == "observer" for rd in data.recs)
 
 
@@ -258,8 +255,8 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
         tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), x0, SCREEN_NFEV, len(cur.x)))
     # closed loops: each candidate also from the nameplate's nominal levels (round 25, nameplate_starts)
     n_nom, starts = len(cur.spec.nominal), nameplate_starts(ctx.data)
-    if starts:              # the current model too: a candidate's gain is measured against the same start's
-        for t in tasks[1:] + tasks[:1]:
+    if starts:
+        for t in tasks[1:]:
             x0 = np.array(t[4], float)
             x0[:n_nom] = 0.0
             tasks.append(t[:4] + (x0,) + t[5:])
@@ -269,9 +266,6 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
         ctx.log(f"  the current model cannot be refitted at {SCREEN_SUBSTEPS} substeps ({res[0]}): selection stops")
         return None
     ref = F.FitResult(cur.spec, *res[0])
-    if starts and not isinstance(res[-1], Skipped) and res[-1][1] < ref.rss:
-        ctx.log(f"  the current model from the nameplate's nominal levels: RSS {res[-1][1]:.0f} against {ref.rss:.0f}")
-        ref = F.FitResult(cur.spec, *res[-1])
     screened, k = [], len(remaining)
     for j, (c, r) in enumerate(zip(remaining, res[1:1 + k])):
         r2 = res[1 + k + j] if starts else None
