@@ -221,19 +221,6 @@ class _Ctx:
             self.progress.set_description(text)
 
 
-def nameplate_starts(data: Data) -> bool:
-    """Screen each candidate a second time from the nameplate's nominal levels (the candidate's own start kept)?
-    Closed loops (every recording scored by the observer).
-
-    Why: the current model's nominal levels were fitted without the candidate and absorb what they can of it; in
-    a closed loop the observer keeps the rest near the noise, and from that point the candidate's fit does not
-    move. Measured (round 25, l25closed): airflow_torque@1 random closed seed 29 (a plateau of +0.014 N m
-    from 60 deg; the calibrated spring rate -4 % of the truth's): from the calibrated levels the airflow fit
-    stays at 0 (observer cost 8685 -> 8670, screening dBIC +11, nothing named, twin 17.6x); from the nameplate's
-    it reaches 6587 (the rate 6.6 % higher) and its twin predicts the open-loop held-out at 5.9x."""
-    return bool(data.recs) and all(rd.residual == "observer" for rd in data.recs)
-
-
 def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
     """Step 1: every remaining candidate added and refitted at SCREEN_SUBSTEPS (the current model refitted there
     too). Returns (the current model's refit, [(dBIC, id, FitResult)] best first), or None when the current
@@ -253,26 +240,14 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
                                                      for k in moved)
                     + ", where the readings went furthest (neither they nor the model's plate reach the nameplate's stop)")
         tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), x0, SCREEN_NFEV, len(cur.x)))
-    # closed loops: each candidate also from the nameplate's nominal levels (round 25, nameplate_starts)
-    n_nom, starts = len(cur.spec.nominal), nameplate_starts(ctx.data)
-    if starts:
-        for t in tasks[1:]:
-            x0 = np.array(t[4], float)
-            x0[:n_nom] = 0.0
-            tasks.append(t[:4] + (x0,) + t[5:])
-    ctx.describe(f"round {rnd + 1}: screening {len(remaining)} candidates")
+    ctx.describe(f"round {rnd + 1}: screening {len(tasks) - 1} candidates")
     res = ctx.runner.map(tasks, ctx.progress)
     if isinstance(res[0], Skipped):         # the current model failed at the screening step: stop here
         ctx.log(f"  the current model cannot be refitted at {SCREEN_SUBSTEPS} substeps ({res[0]}): selection stops")
         return None
     ref = F.FitResult(cur.spec, *res[0])
-    screened, k = [], len(remaining)
-    for j, (c, r) in enumerate(zip(remaining, res[1:1 + k])):
-        r2 = res[1 + k + j] if starts else None
-        if not isinstance(r2, (Skipped, type(None))) and (isinstance(r, Skipped) or r2[1] < r[1]):
-            ctx.log(f"  {c}: from the nameplate's nominal levels RSS {r2[1]:.0f} against "
-                    f"{'a failed fit' if isinstance(r, Skipped) else f'{r[1]:.0f}'} from the current model's")
-            r = r2
+    screened = []
+    for c, r in zip(remaining, res[1:]):
         if isinstance(r, Skipped):
             ctx.skip(c, rnd, r)
             continue
