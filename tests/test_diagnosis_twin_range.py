@@ -35,3 +35,20 @@ def test_the_correction_beyond_the_data_is_the_twins_torque_minus_the_nominals()
     d = describe(stiffer, plant, _data(np.linspace(20.0, 60.0, 501)))
     above = d["beyond"][1]
     assert above["correction_Nm_far"] is not None and abs(above["correction_Nm_far"]) > abs(above["correction_Nm_edge"])
+
+
+def test_a_heating_time_constant_longer_than_the_recording_is_reported_as_extrapolated_in_time():
+    from etb_gym.components.effects_electrical import CoilHeating
+    plant = make_plant("3B")
+    slow = plant.replace(effects=tuple(plant.effects) + (CoilHeating(CoilHeating.Params(
+        heat_capacity_J_per_K=3.3, thermal_resistance_K_per_W=6.1)),))       # tau 20 s
+    t = np.linspace(0.0, 6.0, 6001)
+    data = SimpleNamespace(recs=[SimpleNamespace(rec=SimpleNamespace(angle_deg=np.linspace(10.0, 60.0, t.size),
+                                                                     t_s=t))])
+    d = describe(slow, plant, data)
+    assert [s["effect"] for s in d["slow_states"]] == ["coil_heating"]
+    assert abs(d["slow_states"][0]["tau_s"] - 3.3 * 6.1) < 1e-9 and d["slow_states"][0]["recording_s"] == 6.0
+    assert "time constant 20.1 s exceeds the 6.0 s recording" in d["words"]
+    fast = plant.replace(effects=tuple(plant.effects) + (CoilHeating(CoilHeating.Params(
+        heat_capacity_J_per_K=0.5, thermal_resistance_K_per_W=2.0)),))       # tau 1 s: settles inside it
+    assert describe(fast, plant, data)["slow_states"] == []
