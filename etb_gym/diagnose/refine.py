@@ -20,6 +20,16 @@ from .shapes import MIN_GAIN, Problem, heldout_error, plot_table, refine_family
 # (angle_dependent_friction@1 3B open s24: its table 5.99 against the series' 1.89e4, and it was dropped).
 PERIOD_HELDOUT_SLACK = 2.0
 
+# Outside the catalogue instead of accepted catalogue effects only where the outside description removes this share
+# of what the catalogue model leaves above the noise floor (its angle mean square minus the noise's), checked where
+# the catalogue model is at least OUT_ABOVE noise floors (RMS): a generic description is more flexible than any one
+# family (three tables, or a Fourier series), so a lower held-out error alone does not show a torque the catalogue
+# lacks. Measured (round 25, lead; seed indices 13-15): the outside descriptions of detent and ripple truths remove
+# 0.81-1.00 of it; those that displaced a named shaft_flux_loss@2 and stribeck_friction@2 (random open s30) 0.03 and
+# 0.20 (docs/diagnosis-history.md, "Outside the catalogue only where it removes what the catalogue model leaves").
+OUT_SHARE = 0.5
+OUT_ABOVE = 1.1
+
 FAMILY_OF_TERM = {"unmodelled_angle": ("airflow_torque", "spring_asymmetry", "angle_dependent_friction"),
                   "unmodelled_speed": ("stribeck_friction", "angle_dependent_friction"),
                   "unmodelled_current": ("shaft_flux_loss", "torque_constant_error"),
@@ -155,6 +165,23 @@ def _period_decides(g, h_cat: float, ps: dict | None, rms_nom: float, data: Data
     return U.removes_period(g, ps, rms_nom, data, log)
 
 
+def noise_floor_deg(data: Data) -> float:
+    """The recordings' noise floor [deg], their per-recording floors pooled by sample count (as the angle RMS
+    over all recordings is)."""
+    n = np.array([len(rd.rec.t_s) for rd in data.recs], float)
+    v = np.array([rd.noise_deg for rd in data.recs], float) ** 2
+    return float(np.sqrt(np.sum(n * v) / np.sum(n))) if n.sum() > 0 else 0.0
+
+
+def removes_leftover(rms_cur_deg: float, rms_out_deg: float, noise_deg: float) -> float | None:
+    """The share of the catalogue model's angle mean square above the noise floor that the outside description
+    removes, or None where the catalogue model is within OUT_ABOVE noise floors (the share is then not measurable)."""
+    if not (np.isfinite(rms_cur_deg) and np.isfinite(rms_out_deg)) or rms_cur_deg < OUT_ABOVE * noise_deg:
+        return None
+    excess = rms_cur_deg ** 2 - noise_deg ** 2
+    return float((rms_cur_deg ** 2 - rms_out_deg ** 2) / excess)
+
+
 def _accounts(persistent, cur: F.FitResult, generic: F.FitResult, log) -> bool:
     """Do the generic tables account for the closed-loop persistent structure the catalogue model ``cur``
     leaves (disturbance.resolved)? False without ``persistent`` or without a significant structure."""
@@ -277,6 +304,14 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     rms_nom = U._rms_deg(nominal.spec, nominal.x, data)
     if U.compare(g, h_cat, rms_nom, data) or _accounts(persistent, cur, g.fit, log) \
             or _period_decides(g, h_cat, ps if ps and ps["significant"] else None, rms_nom, data, log):
+        if steps:
+            rc = U._rms_deg(cur.spec, cur.x, data)
+            share = removes_leftover(rc, g.rms_deg, noise_floor_deg(data))
+            if share is not None and share < OUT_SHARE:
+                log(f"  the generic description (RMS {g.rms_deg:.4f} deg) removes {share:.0%} of what "
+                    f"{', '.join(st.id for st in steps)} leaves above the noise (RMS {rc:.4f} deg): the catalogue's "
+                    "name is kept")
+                return cur, steps, res
         named = {st.id for st in steps}
         dom = g.shape.get("significant_terms", [])
         same = (dom and U.periodic_term(g.shape) is None
