@@ -464,3 +464,30 @@ def test_in_a_closed_loop_every_significant_tables_families_are_alternatives(mon
     alt = U.catalogue_alternative(g, _Cur(), fam, None, lambda fr: False, log=lambda *a: None,
                                   resolves=lambda fr: True)
     assert tried == ["shaft_flux_loss", "airflow_torque"] and alt.id == "airflow_torque"
+
+
+def test_a_refused_screening_leader_is_an_alternative_too(monkeypatch):
+    """unmodelled.catalogue_alternative (round 25): the families passed as ``screened`` (refine passes, in a closed
+    loop, the screening's leader that the selection refused) are tried with the significant tables' families; a
+    sensing family is not (angle_dependent_friction@1 3B closed s31: screened first at dBIC -184, refused; the
+    current table's torque_constant_error named at held-out 16.5; angle_dependent_friction with its table 4.75)."""
+    from etb_gym.diagnose import unmodelled as U
+    tried = []
+    held = {"torque_constant_error": 16.5, "angle_dependent_friction": 4.75}
+
+    def fake(cur, cid, data, log):
+        tried.append(cid)
+        return U.FamilyAlternative(cid, _Alt(), None, held[cid], 1.0)
+
+    monkeypatch.setattr(U, "_try_family", fake)
+    monkeypatch.setattr(U, "_rms_deg", lambda spec, x, data: 1.0 if x is _Cur.x else 0.5)
+    fam = {"unmodelled_current": ("torque_constant_error",)}
+    g = _stub_generic(["unmodelled_current"], 40.2)
+    alt = U.catalogue_alternative(g, _Cur(), fam, None, lambda fr: False, log=lambda *a: None,
+                                  resolves=lambda fr: False)
+    assert tried == ["torque_constant_error"] and alt.id == "torque_constant_error"
+    tried.clear()
+    alt = U.catalogue_alternative(g, _Cur(), fam, None, lambda fr: False, log=lambda *a: None,
+                                  resolves=lambda fr: False,
+                                  screened=("angle_dependent_friction", "sensor_offset_gain"))
+    assert tried == ["torque_constant_error", "angle_dependent_friction"] and alt.id == "angle_dependent_friction"

@@ -572,12 +572,14 @@ def _accept(ctx: _Ctx, cur: F.FitResult, gains: list, evidence, rnd: int, resolv
 
 
 def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, significant, max_effects: int = 3,
-           progress=None, log=print, skipped: list | None = None, persistent=None) -> tuple[F.FitResult, list]:
+           progress=None, log=print, skipped: list | None = None, persistent=None,
+           refused: list | None = None) -> tuple[F.FitResult, list]:
     """Greedy forward selection of effects; returns the final fit and the accepted steps in order.
     ``persistent`` (FitResult -> float): the z of the persistent structure a model leaves in a closed loop's
     current residual (module docstring, "Closed loops"); None: the angle's held-out and RMS gains alone decide.
     A candidate whose model cannot be simulated is left out and appended to ``skipped`` as
-    {"id", "round", "reason"} (the report says so)."""
+    {"id", "round", "reason"} (the report says so). ``refused`` (a list, filled): the screening's leader of the
+    round where the selection stopped because no shortlisted candidate was accepted."""
     steps = []
     skipped = [] if skipped is None else skipped
     dropped: set = set()
@@ -636,6 +638,8 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
         gains = passing
         acc = _accept(ctx, cur, gains, evidence, rnd, resolves, structure_only, persistent)
         if acc is None:
+            if refused is not None and screened:
+                refused.append(screened[0][1])
             break
         c, g, full = acc
         if c is None:       # the gain was the current model's own, refitted: take the refit, claim nothing

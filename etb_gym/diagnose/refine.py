@@ -216,7 +216,7 @@ def _resolves(persistent, base: F.FitResult, log):
 
 
 def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, significant, log=print,
-           outside: bool = True, persistent=None):
+           outside: bool = True, persistent=None, refused: tuple = ()):
     """After the greedy selection: refine each accepted family's shape by its table (kept when the held-out
     error falls by MIN_GAIN), then, if a significant residual remains (or nothing was accepted, or a learned
     angle table looks periodic), fit the generic tables of :mod:`.unmodelled` and let them replace the
@@ -226,8 +226,9 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     catalogue candidate on it; a loop hides the effect from the held-out angle). Before "outside the
     catalogue", the families of the generic model's main table are tried with their own tables on the
     calibrated nominal model (unmodelled.catalogue_alternative; in a closed loop also accepted when they
-    account for the structure); a family so named replaces the steps the generic tables displaced. Returns
-    (final fit, steps, Outcome)."""
+    account for the structure); a family so named replaces the steps the generic tables displaced. ``refused``:
+    the screening's leader that the selection did not accept (explain.select); in a closed loop it is tried as an
+    alternative too. Returns (final fit, steps, Outcome)."""
     from . import unmodelled as U
     res = Outcome()
     cur = final
@@ -322,7 +323,8 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
             return cur, steps, res
         # the generic tables extend the calibrated nominal model, so a family that does their job is tried on
         # it too (not on top of the catalogue effects they displace), and accepted by the same closed-loop rule
-        alt = U.catalogue_alternative(g, nominal, FAMILY_OF_TERM, data, significant, log=log, resolves=resolves)
+        alt = U.catalogue_alternative(g, nominal, FAMILY_OF_TERM, data, significant, log=log, resolves=resolves,
+                                      screened=refused if resolves is not None else ())
         if alt is not None:           # a catalogue family with its own table does the generic tables' job
             from .explain import Step, dbic
             log(f"  {alt.id} with its table (held-out {alt.heldout:.3g}) explains what the generic tables do "

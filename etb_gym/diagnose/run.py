@@ -587,8 +587,10 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         if sig0:
             # the search starts from the fit's own optimum: a model that misses an effect drifts on the
             # continuous replay, so its polish says nothing about where the effect's fit should start
+            refused: list = []
             final, steps = select(nominal0, fit_data, runner, [c for c in opts.candidates if CANDIDATES[c].fit],
-                                  significant, opts.max_effects, bar, log, skipped, persistent=persistent)
+                                  significant, opts.max_effects, bar, log, skipped, persistent=persistent,
+                                  refused=refused)
             if not steps and final is not nominal0:
                 # no effect, but the nominal model refitted (explain._accept's footprint guard: the gain of a
                 # refused candidate was the nominal parameters'): that refit is the calibrated nominal model
@@ -599,7 +601,7 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
             from .refine import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
             formula, formula_steps = final, list(steps)
             final, steps, shaped = refine(nominal0, final, steps, fit_data, significant, log=log,
-                                           persistent=persistent)
+                                           persistent=persistent, refused=tuple(refused))
             from .closed_twin import check_tables   # closed loops: a table must help the replay too
             final = check_tables(formula, final, formula_steps, steps, shaped, data, significant, tables_note)
             if tables_note and not tables_note["kept"]:

@@ -541,7 +541,7 @@ def _try_family(cur: F.FitResult, cid: str, data: Data, log) -> FamilyAlternativ
 
 
 def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: dict, data: Data, significant,
-                          log=print, resolves=None) -> FamilyAlternative | None:
+                          log=print, resolves=None, screened: tuple = ()) -> FamilyAlternative | None:
     """Before a residual is called outside the catalogue: the catalogue families that act through the generic
     model's significant tables, the dominant one's first (``family_of_term``: an angle torque -> airflow, spring
     asymmetry, angle-dependent friction; a current torque -> shaft flux loss, torque-constant error; ...) are each added to ``cur`` with
@@ -553,7 +553,9 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
     RMS and held-out error), it accounts for that structure. A periodic angle torque (no catalogue family is
     periodic in angle: neither the generic angle table nor the family's own may be) is no alternative. Among families
     whose errors are within FAMILY_TIE, the better formula is taken, but airflow and spring asymmetry (one
-    table) are told apart by where the generic angle torque acts (:func:`angle_torque_family`)."""
+    table) are told apart by where the generic angle torque acts (:func:`angle_torque_family`). ``screened``: further
+    families tried with the others (refine passes, in a closed loop, the screening's leader that the selection
+    refused: its formula's shape may be what kept it from accounting for the loop's structure)."""
     periodic = periodic_term(generic.shape) is not None
     dom = generic.shape.get("significant_terms", [])
     if not dom:
@@ -581,6 +583,13 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
         from .candidates import CANDIDATES
         first = [c for c in first + rest if c in CANDIDATES and CANDIDATES[c].family == "friction"]
         rest = []
+    # in a closed loop the selection may refuse the family the screening ranked first because its formula's shape
+    # cannot account for the loop's structure; with its table it may (angle_dependent_friction@1 3B closed s31:
+    # screened at dBIC -184, refused at angle RMS x0.91; the current and voltage tables' families tried, and
+    # torque_constant_error named at held-out 16.5, twin 38.6x; angle_dependent_friction with its table 4.75)
+    from .candidates import CANDIDATES as _C
+    rest += [c for c in screened if c not in named and c not in first and c not in rest
+             and c in _C and _C[c].family != "sensing" and not periodic]
     alts = tried(first)
     if rest and (resolves is not None or not any(a.heldout <= HELD_AT_NOISE for a in alts)):
         alts += tried(rest)
