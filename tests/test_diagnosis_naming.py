@@ -222,8 +222,6 @@ def test_an_outside_description_must_remove_most_of_what_the_catalogue_model_lea
     # shaft_flux_loss@2 random open s30: the catalogue model's RMS 0.0421 deg, the generic tables' 0.0418 deg, noise
     # 0.0306 deg: 3 % of the excess removed (a lower held-out error alone had sent it outside the catalogue); a detent
     # truth after a spring asymmetry was accepted: 1.43 -> 1.09 noise floors, 81 % removed
-    from types import SimpleNamespace
-
     from etb_gym.diagnose import refine as R
     share = R.removes_leftover(0.0421, 0.0418, 0.0306)
     assert share == pytest.approx((0.0421 ** 2 - 0.0418 ** 2) / (0.0421 ** 2 - 0.0306 ** 2))
@@ -232,6 +230,3 @@ def test_an_outside_description_must_remove_most_of_what_the_catalogue_model_lea
     assert R.removes_leftover(1.05, 0.9, 1.0) is None          # the catalogue model within the noise: not measurable
     assert R.removes_leftover(float("inf"), 0.9, 1.0) is None
     assert R.removes_leftover(2.0, 2.5, 1.0) < 0                # worse than the catalogue model
-    rec = lambda n, s: SimpleNamespace(rec=SimpleNamespace(t_s=np.zeros(n)), noise_deg=s)   # noqa: E731
-    data = SimpleNamespace(recs=[rec(100, 0.01), rec(300, 0.03)])
-    assert R.noise_floor_deg(data) == pytest.approx(np.sqrt((100 * 1e-4 + 300 * 9e-4) / 400))

@@ -165,14 +165,6 @@ def _period_decides(g, h_cat: float, ps: dict | None, rms_nom: float, data: Data
     return U.removes_period(g, ps, rms_nom, data, log)
 
 
-def noise_floor_deg(data: Data) -> float:
-    """The recordings' noise floor [deg], their per-recording floors pooled by sample count (as the angle RMS
-    over all recordings is)."""
-    n = np.array([len(rd.rec.t_s) for rd in data.recs], float)
-    v = np.array([rd.noise_deg for rd in data.recs], float) ** 2
-    return float(np.sqrt(np.sum(n * v) / np.sum(n))) if n.sum() > 0 else 0.0
-
-
 def removes_leftover(rms_cur_deg: float, rms_out_deg: float, noise_deg: float) -> float | None:
     """The share of the catalogue model's angle mean square above the noise floor that the outside description
     removes, or None where the catalogue model is within OUT_ABOVE noise floors (the share is then not measurable)."""
@@ -307,7 +299,7 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
             or _period_decides(g, h_cat, ps if ps and ps["significant"] else None, rms_nom, data, log):
         if steps:
             rc = U._rms_deg(cur.spec, cur.x, data)
-            share = removes_leftover(rc, g.rms_deg, noise_floor_deg(data))
+            share = removes_leftover(rc, g.rms_deg, data.noise_deg)
             if share is not None and share < OUT_SHARE:
                 log(f"  the generic description (RMS {g.rms_deg:.4f} deg) removes {share:.0%} of what "
                     f"{', '.join(st.id for st in steps)} leaves above the noise (RMS {rc:.4f} deg): the catalogue's "

@@ -556,6 +556,7 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
     table) are told apart by where the generic angle torque acts (:func:`angle_torque_family`). ``screened``: further
     families tried with the others (refine passes, in a closed loop, the screening's leader that the selection
     refused: its formula's shape may be what kept it from accounting for the loop's structure)."""
+    from .candidates import CANDIDATES
     periodic = periodic_term(generic.shape) is not None
     dom = generic.shape.get("significant_terms", [])
     if not dom:
@@ -580,16 +581,15 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
         # only when it predicts the held-out folds better than the generic tables (no slack) with a table that is
         # not periodic itself (angle_dependent_friction@1 random open s28: the angle table "periodic" at 33 deg, R2
         # 0.95, nothing tried; angle_dependent_friction with its table: held-out 5.16, twin 1.11x against 27.4x)
-        from .candidates import CANDIDATES
         first = [c for c in first + rest if c in CANDIDATES and CANDIDATES[c].family == "friction"]
         rest = []
     # in a closed loop the selection may refuse the family the screening ranked first because its formula's shape
     # cannot account for the loop's structure; with its table it may (angle_dependent_friction@1 3B closed s31:
     # screened at dBIC -184, refused at angle RMS x0.91; the current and voltage tables' families tried, and
     # torque_constant_error named at held-out 16.5, twin 38.6x; angle_dependent_friction with its table 4.75)
-    from .candidates import CANDIDATES as _C
-    rest += [c for c in screened if c not in named and c not in first and c not in rest
-             and c in _C and _C[c].family != "sensing" and not periodic]
+    if not periodic:
+        rest += [c for c in screened if c not in named and c not in first + rest
+                 and c in CANDIDATES and CANDIDATES[c].family != "sensing"]
     alts = tried(first)
     if rest and (resolves is not None or not any(a.heldout <= HELD_AT_NOISE for a in alts)):
         alts += tried(rest)
