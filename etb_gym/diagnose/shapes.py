@@ -64,6 +64,10 @@ OUTER_SPEED = 3.0        # speed tables get a last knot at this multiple of the 
 STRIBECK_SPAN = 3e3      # the Stribeck table's knots reach this far below the top speed (0.033 rad/s at 100 rad/s:
                          # a rig's Stribeck velocity is 0.02-0.2 rad/s; at top / 300 the first knot, 0.33 rad/s,
                          # left the whole drop in one interval; stribeck_friction@2 3B s22, docs/diagnosis-history.md round 22)
+THERMAL_BRANCHES = 7     # branches of the coil heating's thermal network (thermal_term) ...
+THERMAL_TAU_MIN = 0.2    # ... the fastest time constant [s] ...
+THERMAL_SPAN = 3.0       # ... the slowest, this multiple of the longest recording
+LOG_GRIDS = ("time_constant_s",)   # grids whose roughness is taken over the log of the knots
 STRIBECK_FLOOR = 0.01    # ... but not below this speed (0.6 deg/s: the recordings' speeds are not resolved there; at
                          # top/3e3 = 0.0016 rad/s the table's lowest knots bent the closing level by -3 mN m and the
                          # twin went 6.3x -> 10.9x on stribeck_friction@2 random s22's closed-loop held-out recording)
@@ -104,7 +108,7 @@ class MapTerm:
         n = self.grid.size
         if n < 3:
             return np.zeros((0, self.n_coef))
-        h = np.diff(self.grid)
+        h = np.diff(np.log(self.grid) if self.cls.grid_field in LOG_GRIDS else self.grid)
         rows = []
         for f in range(len(self.value_fields)):
             for k in range(1, n - 1):
@@ -321,6 +325,8 @@ def family_terms(cid: str, base, data: Data) -> list:
     out = [t] if t is not None else []
     if t is not None and t.family == "friction":       # every friction family: a level that differs by direction
         out.append(direction_split_term(t) if t.cls is mx.SpeedFrictionMap else direction_offset_term(cid))
+    if cid == "coil_heating":            # losses that go with the voltage as well as the copper loss (the folds decide)
+        out.append(thermal_term(cid, base, data, voltage=True))
     if cid == "torque_constant_error":
         grid = current_grid(data, base, 9, by_extent=True)
         out.append(MapTerm(f"{cid}_current_map", "electrical", mx.CurrentTorqueConstantMap, grid,
@@ -358,6 +364,30 @@ def direction_offset_term(cid: str) -> MapTerm:
                    ("opening_Nm", "closing_Nm"), 0.005, "N m", (("presliding_rad", 2e-3),), basis=B)
 
 
+def thermal_grid(data: Data, n: int = THERMAL_BRANCHES) -> np.ndarray:
+    """n time constants, log-spaced from THERMAL_TAU_MIN to THERMAL_SPAN times the longest recording: a branch
+    slower than the recording acts on it as a ramp, faster ones as the winding's own heating."""
+    dur = max(float(rd.rec.t_s[-1] - rd.rec.t_s[0]) for rd in data.recs)
+    return np.geomspace(THERMAL_TAU_MIN, max(THERMAL_SPAN * dur, 10.0 * THERMAL_TAU_MIN), n)
+
+
+def thermal_term(cid: str, base, data: Data, voltage: bool = False) -> MapTerm:
+    """The heating as a Foster network (components/effects_thermal.py): a thermal resistance per fixed time
+    constant, driven by the copper loss at the plant's resistance; roughness over log tau. Any heating dynamics
+    (one node, a winding and a housing node, a distributed housing) is a linear combination of the branches.
+    With ``voltage`` the branches are driven by u^2 too (a second column of coefficients, losses that go with the
+    coil voltage: PWM ripple, iron), else that column is held at 0 (a basis)."""
+    from ..components.effects_thermal import ThermalNetwork
+    from ..variants import COPPER_ALPHA_PER_K
+    r0 = float(getattr(base.drive.params, "resistance_ohm", 1.0))
+    g = thermal_grid(data)
+    n = g.size
+    B = np.eye(2 * n) if voltage else np.vstack([np.eye(n), np.zeros((n, n))])
+    return MapTerm(f"{cid}_{'voltage_' if voltage else ''}map", "electrical", ThermalNetwork, g,
+                   ("thermal_resistance_K_per_W", "voltage_rise_K_per_V2"), 1.0, "K/W, K/V^2",
+                   (("cold_resistance_ohm", r0), ("temperature_coefficient_per_K", COPPER_ALPHA_PER_K)), basis=B)
+
+
 def family_term(cid: str, base, data: Data) -> MapTerm | None:
     """The map that refines candidate ``cid`` (None: the family has no table form here)."""
     if cid in ("airflow_torque", "spring_asymmetry"):
@@ -371,6 +401,8 @@ def family_term(cid: str, base, data: Data) -> MapTerm | None:
     if cid == "stribeck_friction":         # its drop lies far below the top speed: STRIBECK_SPAN, same spacing
         return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7, STRIBECK_FLOOR),
                        ("opening_Nm", "closing_Nm"), 0.005, "N m", (("presliding_rad", 2e-3),))
+    if cid == "coil_heating":
+        return thermal_term(cid, base, data)
     if cid == "supply_drop":
         return MapTerm(f"{cid}_map", "electrical", mx.CurrentVoltageMap, current_grid(data, base, 9, by_extent=True),
                        ("drop_V",), 0.02, "V")
@@ -844,7 +876,10 @@ def plot_table(ax, term: MapTerm, table: dict, title: str):
     """Draw a learned table on a matplotlib axis (grid in deg, rad/s or A)."""
     g = np.asarray(table[term.cls.grid_field], float)
     x = np.degrees(g) if term.cls.grid_field == "angle_rad" else g
-    xl = {"angle_rad": "angle [deg]", "speed_rad_s": "speed |omega| [rad/s]", "current_A": "current [A]"}
+    xl = {"angle_rad": "angle [deg]", "speed_rad_s": "speed |omega| [rad/s]", "current_A": "current [A]",
+          "time_constant_s": "branch time constant [s]"}
+    if term.cls.grid_field in LOG_GRIDS:
+        ax.set_xscale("log")
     for f in term.value_fields:
         ax.plot(x, table[f], marker=".", lw=1.0, label=f)
     ax.axhline(0.0, color="k", lw=0.5)
