@@ -51,6 +51,7 @@ def test_thermal_network_round_trips_through_the_plant_file(tmp_path, suffix):
 
 @pytest.mark.parametrize("bad, match", [
     (dict(time_constant_s=(0.0, 1.0)), "time_constant_s"),
+    (dict(time_constant_s=(1e-4, 1.0)), "time constants >= 1 ms"),
     (dict(time_constant_s=(2.0, 1.0)), "strictly increasing"),
     (dict(thermal_resistance_K_per_W=(1.0, 2.0, 3.0)), "one value per knot"),
     (dict(cold_resistance_ohm=-1.0), "cold_resistance_ohm"),

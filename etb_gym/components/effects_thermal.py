@@ -43,8 +43,8 @@ class ThermalNetworkParams(_MapParams):
         if len(self.voltage_rise_K_per_V2) == 0:
             object.__setattr__(self, "voltage_rise_K_per_V2", (0.0,) * len(self.thermal_resistance_K_per_W))
         super().validate()
-        check(type(self).__name__, "time_constant_s", list(self.time_constant_s), self.time_constant_s[0] > 0.0,
-              "time constants > 0")
+        check(type(self).__name__, "time_constant_s", list(self.time_constant_s), self.time_constant_s[0] >= 1e-3,
+              "time constants >= 1 ms (thermal: the stepper's explicit rule needs them far above its substep)")
 
 
 @kernel
