@@ -140,6 +140,8 @@ EFFECTS = {
     "effect.spring_asymmetry": {"closing_preload_delta_Nm": 0.02, "closing_rate_delta_Nm_per_rad": 0.05},
     "effect.stribeck_friction": {"stiction_Nm": 0.04},
     "effect.supply_drop": {"series_resistance_ohm": 0.2, "forward_drop_V": 0.3},
+    "effect.thermal_network": {"time_constant_s": (0.01, 0.05, 1.0), "thermal_resistance_K_per_W": (1.0, 4.0, 8.0),
+                               "voltage_rise_K_per_V2": (0.0, 0.05, 0.1)},
     "effect.torque_constant_error": {"delta_Nm_per_A": 0.005},
     "effect.torque_constant_map": {"angle_rad": (0.0, 0.5, 1.5), "delta_Nm_per_A": (0.0, -0.004, 0.006)},
 }

@@ -20,6 +20,7 @@ from .effects_mechanical import (AirflowTorque, AirflowTorqueParams, Backlash, B
 from .effects_maps import (MAP_EFFECTS, AngleFrictionMap, AngleTorqueMap, CurrentVoltageMap, SensorMap,  # noqa: F401
                            SpeedFrictionMap, TorqueConstantMap,  # tables learned from data (diagnosis-shapes.md)
                            CurrentInductanceMap, CurrentTorqueConstantMap, CurrentTorqueMap)
+from .effects_thermal import ThermalNetwork, ThermalNetworkParams  # noqa: F401  (a Foster network, learned)
 from .effects_periodic import PeriodicAngleTorque, PeriodicAngleTorqueParams  # noqa: F401  (a Fourier series in angle)
 
 ODE_EFFECTS: dict[str, type[Effect]] = {c.effect_id: c for c in (
