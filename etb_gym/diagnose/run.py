@@ -610,6 +610,8 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
             lap("refine")
             if final is not nominal0:       # the verdict's test guards the closed loop's replay refit
                 final = polish(final, data, shaped, final=True, note=replay_note, significant=significant)
+                from .closed_twin import refit_weak    # closed loops: the directions the observer does not see
+                final = refit_weak(final, data, replay_note, significant, replay_note)
                 from .closed_twin import continue_tables    # closed loops: a table beyond the visited angles
                 final = continue_tables(final, shaped, data, tables_note)
             else:
