@@ -196,10 +196,10 @@ def test_the_offset_and_gain_candidate_bends_with_its_bow_and_keeps_a_learned_cu
     """sensor_offset_gain's bow (round 26): a parabola over the travel, zero at the stops, the bow at mid-travel; in
     a closed loop offset and gain trade against the calibrated spring, the bow cannot. A learned curve held in
     Spec.sensor_map is added to it (the curve is learned on top of the bow), not replaced by it."""
-    from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.candidates import SENSOR_OFFSET_GAIN_BOWED
     from etb_gym.diagnose.model import Spec
     plant = make_plant("3B")
-    spec = Spec(plant, (CANDIDATES["sensor_offset_gain"],))
+    spec = Spec(plant, (SENSOR_OFFSET_GAIN_BOWED,))
     vals = {"sensor_offset_gain.offset_deg": 0.2, "sensor_offset_gain.gain": 1.01, "sensor_offset_gain.bow_deg": 0.12}
     _, s = spec.build(spec.x_from_values(vals))
     lo, hi = math.degrees(plant.angle_min_rad), math.degrees(plant.angle_max_rad)
