@@ -217,10 +217,10 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
 # ------------------------------------------------------------------------------------------ sensor side
 # The bow: a reading curve's curvature, a third parameter of sensor_offset_gain (sensor_fields builds it). In a closed
 # loop the loop holds the reading, so offset and gain trade exactly against the calibrated spring's preload and rate;
-# only a curvature is left to see. NOT in the catalogue: measured in docs/diagnosis-rounds/round26-n26sensor.md (it
-# names sensor_offset_gain@1 closed s31 on both nameplates, but in open loop it took a flux loss's angle torque first:
-# tests/test_diagnosis.py::test_proof_finds_two_concealed_effects_at_once). SENSOR_OFFSET_GAIN_BOWED is the candidate
-# with it, for a closed-loop-only use to be decided.
+# only a curvature is left to see. Closed loops only (run._diagnose swaps SENSOR_OFFSET_GAIN_BOWED in when every
+# recording is scored by the observer): in open loop, where offset and gain are seen, the bow took a flux loss's angle
+# torque first (tests/test_diagnosis.py::test_proof_finds_two_concealed_effects_at_once); measured in
+# docs/diagnosis-rounds/round26-n26sensor.md.
 BOW_PARAM = FitParam("bow_deg", 0.0, -3.0, 3.0, 0.05, "deg")
 BOW_KNOTS = 17            # knots of the bow's curve over the travel (a parabola's interpolation error: bow / 256)
 
