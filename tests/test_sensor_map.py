@@ -1,6 +1,7 @@
 """The sensor-side maps of a twin (issue 15 item 3): the reading curve and the reading filter as components, the
 plant file's [sensor] section, and the maps learned back from synthetic readings (no simulation: the fits are
 linear given the model's angle)."""
+import dataclasses
 import math
 
 import numpy as np
@@ -189,3 +190,27 @@ def test_the_reading_curve_and_the_parameters_alternate_while_the_replay_falls(m
     ref = SM.refine_sensor(Fit_(Spec_(), np.zeros(2)), "sensor_offset_gain", data, log=lambda *a: None)
     assert ref.kept and ref.params == 4                 # passes learned curves 2, 3, 4; 65 -> 64.5 is under 2 %
     assert ref.fit.spec.sensor_map == {"curve": 4}
+
+
+def test_the_offset_and_gain_candidate_bends_with_its_bow_and_keeps_a_learned_curve_on_top():
+    """sensor_offset_gain's bow (round 26): a parabola over the travel, zero at the stops, the bow at mid-travel; in
+    a closed loop offset and gain trade against the calibrated spring, the bow cannot. A learned curve held in
+    Spec.sensor_map is added to it (the curve is learned on top of the bow), not replaced by it."""
+    from etb_gym.diagnose.candidates import SENSOR_OFFSET_GAIN_BOWED
+    from etb_gym.diagnose.model import Spec
+    plant = make_plant("3B")
+    spec = Spec(plant, (SENSOR_OFFSET_GAIN_BOWED,))
+    vals = {"sensor_offset_gain.offset_deg": 0.2, "sensor_offset_gain.gain": 1.01, "sensor_offset_gain.bow_deg": 0.12}
+    _, s = spec.build(spec.x_from_values(vals))
+    lo, hi = math.degrees(plant.angle_min_rad), math.degrees(plant.angle_max_rad)
+    phi = np.array([lo, 0.25 * lo + 0.75 * hi, 0.5 * (lo + hi), hi])
+    bow = 4.0 * 0.12 * (phi - lo) / (hi - lo) * (1.0 - (phi - lo) / (hi - lo))
+    np.testing.assert_allclose(s.apply(np.arange(4) * DT, phi), 1.01 * (phi + bow) + 0.2, atol=1e-3)
+    np.testing.assert_allclose(s.invert(1.01 * (phi + bow) + 0.2), phi, atol=1e-3)
+    learned = SensorMapParams(angle_rad=(0.2, 0.8), error_rad=(0.001, 0.002))
+    held = dataclasses.replace(spec, sensor_map={"curve": learned})
+    _, s2 = held.build(held.x_from_values(vals))
+    extra = np.degrees(np.interp(np.radians(phi), learned.angle_rad, learned.error_rad))
+    np.testing.assert_allclose(s2.apply(np.arange(4) * DT, phi), 1.01 * (phi + bow + extra) + 0.2, atol=1e-3)
+    _, s0 = held.build(held.x_from_values({**vals, "sensor_offset_gain.bow_deg": 0.0}))
+    assert s0.curve == learned                                    # no bow: the learned curve as it was

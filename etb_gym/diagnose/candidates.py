@@ -214,6 +214,53 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
     Candidate("sensor_quantization", "sensing", "position sensor resolution coarser than assumed", ()),
 )}
 
+# ------------------------------------------------------------------------------------------ sensor side
+# The bow: a reading curve's curvature, a third parameter of sensor_offset_gain (sensor_fields builds it). In a closed
+# loop the loop holds the reading, so offset and gain trade exactly against the calibrated spring's preload and rate;
+# only a curvature is left to see. Closed loops only (run._diagnose swaps SENSOR_OFFSET_GAIN_BOWED in when every
+# recording is scored by the observer): in open loop, where offset and gain are seen, the bow took a flux loss's angle
+# torque first (tests/test_diagnosis.py::test_proof_finds_two_concealed_effects_at_once); measured in
+# docs/diagnosis-rounds/round26-n26sensor.md.
+BOW_PARAM = FitParam("bow_deg", 0.0, -3.0, 3.0, 0.05, "deg")
+BOW_KNOTS = 17            # knots of the bow's curve over the travel (a parabola's interpolation error: bow / 256)
+
+
+def bow_curve(bow_deg: float, lo_rad: float, hi_rad: float, held=None):
+    """The reading error of a bow: a parabola over the travel [lo, hi] (the stops), ``bow_deg`` at mid-travel and
+    zero at the stops, d(phi) = 4 b u (1 - u), u = (phi - lo) / (hi - lo): with the offset and gain free, any
+    quadratic reading error over angle. ``held`` (a learned SensorMapParams, sensor_map.py) is added to it on the
+    union of both grids (the learned curve is learned on top of the bow). SensorMapParams, or ``held`` if b = 0."""
+    from ..components.effects_maps import SensorMapParams
+    if bow_deg == 0.0:
+        return held
+    if not hi_rad > lo_rad:
+        raise ValueError(f"a reading bow needs the plant's travel; its stops are {lo_rad} and {hi_rad} rad")
+    grid = np.linspace(lo_rad, hi_rad, BOW_KNOTS)
+    if held is not None:
+        grid = np.union1d(grid, np.asarray(held.angle_rad, float))
+    u = np.clip((grid - lo_rad) / (hi_rad - lo_rad), 0.0, 1.0)
+    err = 4.0 * math.radians(bow_deg) * u * (1.0 - u)
+    if held is not None:
+        err = err + np.interp(grid, np.asarray(held.angle_rad, float), np.asarray(held.error_rad, float))
+    return SensorMapParams(angle_rad=tuple(float(a) for a in grid), error_rad=tuple(float(e) for e in err))
+
+
+def sensor_fields(fields: dict, plant, held: dict | None) -> dict:
+    """SensorModel's fields from the sensing candidates' fitted ``fields`` and the held maps ``held``
+    (Spec.sensor_map): a bow becomes a reading curve over the plant's travel, added to a held curve."""
+    out = {**fields, **(held or {})}
+    bow = out.pop("bow_deg", 0.0)
+    if bow != 0.0:
+        lo = plant.angle_min_rad if math.isfinite(plant.angle_min_rad) else 0.0
+        hi = plant.angle_max_rad if math.isfinite(plant.angle_max_rad) else math.pi / 2
+        out["curve"] = bow_curve(bow, lo, hi, (held or {}).get("curve"))
+    return out
+
+
+SENSOR_OFFSET_GAIN_BOWED = dataclasses.replace(
+    CANDIDATES["sensor_offset_gain"], description="position sensor offset, gain or curvature error",
+    fit=CANDIDATES["sensor_offset_gain"].fit + (BOW_PARAM,), off=CANDIDATES["sensor_offset_gain"].off + (("bow_deg", 0.0),))
+
 FITTED_CANDIDATES = tuple(k for k, c in CANDIDATES.items() if c.fit)
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..plant import Plant
 from ..recordings import Recording
-from .candidates import Candidate, FitParam, nominal_params
+from .candidates import Candidate, FitParam, nominal_params, sensor_fields
 from .measurement import SensorModel, noise_floor, detect_resolution
 from .loop import LOOP_Z  # noqa: F401  (re-exported: run.py, tests)
 from .observer import observe
@@ -226,7 +226,7 @@ class Spec:
             effects.append(e)
         if effects:
             plant = plant.replace(effects=tuple(self.base.effects) + tuple(effects))
-        return plant, SensorModel(**{**sensor, **(self.sensor_map or {})})
+        return plant, SensorModel(**sensor_fields(sensor, self.base, self.sensor_map))
 
 
 def _persistent_slices(plant: Plant) -> list[tuple[int, int]]:
