@@ -1,7 +1,7 @@
 """Where a friction twin's held-out error comes from: its levels against the truth's, and the knife edge.
 
 Takes the pickles that ``scripts/twin_coverage.py --work DIR`` keeps per proof case (truth, both recordings, the
-twin, the final fit and the data) and prints, per case (round 26, docs/diagnosis-rounds/round26-p26friction.md):
+twin, the final fit and the data) and prints, per case (round 26, docs/diagnosis-history.md, round 26 p26friction):
 
   * the twin's nominal levels (Coulomb, static, spring preload and rate) minus the truth's, with the standard
     error the report gives them (report.json ``calibrated_parameters``),

@@ -220,7 +220,7 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
 # only a curvature is left to see. Closed loops only (run._diagnose swaps SENSOR_OFFSET_GAIN_BOWED in when every
 # recording is scored by the observer): in open loop, where offset and gain are seen, the bow took a flux loss's angle
 # torque first (tests/test_diagnosis.py::test_proof_finds_two_concealed_effects_at_once); measured in
-# docs/diagnosis-rounds/round26-n26sensor.md.
+# docs/diagnosis-history.md, round 26 n26sensor.
 BOW_PARAM = FitParam("bow_deg", 0.0, -3.0, 3.0, 0.05, "deg")
 BOW_KNOTS = 17            # knots of the bow's curve over the travel (a parabola's interpolation error: bow / 256)
 

@@ -539,7 +539,7 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
     fit_data = restart_view(data)           # what the fits see (polish: why two residuals)
     if all(rd.residual == "observer" for rd in data.recs):
         # closed loops only: the loop holds the reading, so offset and gain trade with the calibrated spring and only
-        # a reading map's curvature is left to see (candidates.BOW_PARAM; docs/diagnosis-rounds/round26-n26sensor.md)
+        # a reading map's curvature is left to see (candidates.BOW_PARAM; docs/diagnosis-history.md, round 26 n26sensor)
         from .candidates import SENSOR_OFFSET_GAIN_BOWED
         CANDIDATES["sensor_offset_gain"] = SENSOR_OFFSET_GAIN_BOWED
     dt = recs[0].dt_s

@@ -876,7 +876,7 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print) -> Refine
         if term.score_current:
             # a term of the coil's voltage balance (the heating) is scored on the current's rows too: in a closed
             # loop the angle hides it, the current shows it (a two-node heating's one-node fit: held-out angle at
-            # the noise, the twin 8.2x on the other loop type; docs/diagnosis-rounds/round26-o26thermal.md). The
+            # the noise, the twin 8.2x on the other loop type; docs/diagnosis-history.md, round 26 o26thermal). The
             # Refinement keeps the angle's held-out errors, which refine compares with other models'.
             if h_cur is None:
                 h_cur = heldout_error(dataclasses.replace(pb_formula, score_current=True), data)
