@@ -135,6 +135,8 @@ EFFECTS = {
     "effect.end_stop_compliance": {"stiffness_Nm_per_rad": 700.0},
     "effect.inductance_saturation": {"inductance_drop_H": 5e-4},
     "effect.shaft_flux_loss": {"loss_at_open_Nm_per_A": 0.01},
+    "effect.periodic_angle_torque": {"period_rad": 0.26, "cos_Nm": (0.01, 0.004), "sin_Nm": (-0.006, 0.002),
+                                     "cos_Nm_per_A": (0.002, 0.0), "sin_Nm_per_A": (0.0, -0.001)},
     "effect.speed_friction_map": {"speed_rad_s": (0.0, 0.5, 2.0, 8.0), "opening_Nm": (0.03, 0.01, 0.02, 0.04),
                                   "closing_Nm": (0.02, 0.02, 0.0, 0.05)},
     "effect.spring_asymmetry": {"closing_preload_delta_Nm": 0.02, "closing_rate_delta_Nm_per_rad": 0.05},
