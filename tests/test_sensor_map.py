@@ -214,3 +214,20 @@ def test_the_offset_and_gain_candidate_bends_with_its_bow_and_keeps_a_learned_cu
     np.testing.assert_allclose(s2.apply(np.arange(4) * DT, phi), 1.01 * (phi + bow + extra) + 0.2, atol=1e-3)
     _, s0 = held.build(held.x_from_values({**vals, "sensor_offset_gain.bow_deg": 0.0}))
     assert s0.curve == learned                                    # no bow: the learned curve as it was
+
+
+def test_closed_loop_catalogue_is_scoped_to_one_diagnosis():
+    """The bowed reading map lasts only inside diagnosis_catalogue() (restored on any exit, also an error), and
+    cannot be switched on outside it."""
+    from etb_gym.diagnose import candidates as c
+    plain = c.CANDIDATES["sensor_offset_gain"]
+    with pytest.raises(RuntimeError, match="diagnosis_catalogue"):
+        c.use_closed_loop_catalogue()
+    with pytest.raises(KeyError):
+        with c.diagnosis_catalogue():
+            c.use_closed_loop_catalogue()
+            assert c.CANDIDATES["sensor_offset_gain"] is c.SENSOR_OFFSET_GAIN_BOWED
+            raise KeyError("a failing diagnosis")
+    assert c.CANDIDATES["sensor_offset_gain"] is plain
+    with pytest.raises(RuntimeError):
+        c.use_closed_loop_catalogue()

@@ -13,8 +13,10 @@ diagnosed (:func:`nameplate`), so starting values, steps and bounds follow the u
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
+import threading
 
 import numpy as np
 
@@ -262,6 +264,35 @@ SENSOR_OFFSET_GAIN_BOWED = dataclasses.replace(
     fit=CANDIDATES["sensor_offset_gain"].fit + (BOW_PARAM,), off=CANDIDATES["sensor_offset_gain"].off + (("bow_deg", 0.0),))
 
 FITTED_CANDIDATES = tuple(k for k, c in CANDIDATES.items() if c.fit)
+
+# One diagnosis at a time may change the catalogue (the closed loops' bowed reading map): the swap is process-wide,
+# read by this process's fits and by the fork pool's workers (explain.Runner), so diagnoses in threads of one process
+# take turns here rather than see each other's catalogue.
+_CATALOGUE_LOCK = threading.RLock()
+_IN_SCOPE = threading.local()
+
+
+@contextlib.contextmanager
+def diagnosis_catalogue():
+    """The scope of one diagnosis's catalogue: :func:`use_closed_loop_catalogue` inside it lasts until it ends (the
+    plain catalogue is restored on any exit); concurrent diagnoses in threads wait for each other."""
+    with _CATALOGUE_LOCK:
+        plain, depth = dict(CANDIDATES), getattr(_IN_SCOPE, "depth", 0)
+        _IN_SCOPE.depth = depth + 1
+        try:
+            yield
+        finally:
+            _IN_SCOPE.depth = depth
+            CANDIDATES.clear()
+            CANDIDATES.update(plain)
+
+
+def use_closed_loop_catalogue():
+    """Closed loops only (every recording scored by the observer): ``sensor_offset_gain`` carries the bow
+    (SENSOR_OFFSET_GAIN_BOWED). Call inside :func:`diagnosis_catalogue`."""
+    if not getattr(_IN_SCOPE, "depth", 0):
+        raise RuntimeError("use_closed_loop_catalogue() changes the catalogue: call it inside diagnosis_catalogue()")
+    CANDIDATES["sensor_offset_gain"] = SENSOR_OFFSET_GAIN_BOWED
 
 
 def candidate(cid: str) -> Candidate:

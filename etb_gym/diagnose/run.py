@@ -517,12 +517,11 @@ def _base_and_data(opts: Options, recs: list) -> tuple[Plant, Data]:
 def diagnose(recordings, model: str = "3B", out=None, options: Options | None = None, **kw) -> "Result":
     """Diagnose ``recordings`` (paths or :class:`Recording`) against ``model``; write the report to ``out``."""
     from .threads import one_blas_thread
-    plain = CANDIDATES["sensor_offset_gain"]
-    try:
-        with one_blas_thread():                 # small linear algebra, parallel fits: threads only contend
-            return _diagnose(recordings, model, out, options, kw)
-    finally:
-        CANDIDATES["sensor_offset_gain"] = plain     # the closed loops' bowed reading map (_diagnose) ends here
+    from .candidates import diagnosis_catalogue
+    # small linear algebra, parallel fits: threads only contend; the catalogue this diagnosis may change (the closed
+    # loops' bowed reading map) is restored when it ends
+    with diagnosis_catalogue(), one_blas_thread():
+        return _diagnose(recordings, model, out, options, kw)
 
 
 def _diagnose(recordings, model, out, options, kw) -> "Result":
@@ -540,8 +539,8 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
     if all(rd.residual == "observer" for rd in data.recs):
         # closed loops only: the loop holds the reading, so offset and gain trade with the calibrated spring and only
         # a reading map's curvature is left to see (candidates.BOW_PARAM; docs/diagnosis-history.md, round 26 n26sensor)
-        from .candidates import SENSOR_OFFSET_GAIN_BOWED
-        CANDIDATES["sensor_offset_gain"] = SENSOR_OFFSET_GAIN_BOWED
+        from .candidates import use_closed_loop_catalogue
+        use_closed_loop_catalogue()
     dt = recs[0].dt_s
     log(f"etb-gym diagnose: {len(recs)} recording(s), {sum(r.n for r in recs)} samples at {1 / dt:.0f} Hz, "
         f"model {base.model or 'custom'}; noise floor {data.noise_deg:.4f} deg; {base.substeps} substeps per sample")
