@@ -56,8 +56,8 @@ def _stubs(monkeypatch, replay_target):
 
 def test_the_trade_the_observer_cannot_see_is_refitted_on_the_replay_where_both_halves_gain(monkeypatch):
     fr, data = _stubs(monkeypatch, lambda t: np.zeros_like(t))
-    note = {}
-    out = CT.refit_weak(fr, data, {"kept": False}, note=note)
+    note = {"kept": False}                   # run.polish_replay's note: its whole replay refit not kept
+    out = CT.refit_weak(fr, data, note=note)
     assert note["weak"]["kept"] and note["weak"]["directions"] == 1
     np.testing.assert_allclose(out.x, X_TRUE, atol=1e-3)           # moved along V only, to the replay's point
     assert note["weak"]["observer_cost"][1] == pytest.approx(note["weak"]["observer_cost"][0], rel=1e-6)
@@ -65,13 +65,13 @@ def test_the_trade_the_observer_cannot_see_is_refitted_on_the_replay_where_both_
 
 def test_a_weak_direction_the_halves_disagree_on_is_left_where_the_observer_put_it(monkeypatch):
     fr, data = _stubs(monkeypatch, lambda t: np.where(t < 3.0, 1.5, -1.5))
-    note = {}
-    out = CT.refit_weak(fr, data, {"kept": False}, note=note)
+    note = {"kept": False}                   # run.polish_replay's note: its whole replay refit not kept
+    out = CT.refit_weak(fr, data, note=note)
     assert not note["weak"]["kept"] and note["weak"]["rule"] == "halves refuse"
     assert out is fr
 
 
 def test_nothing_happens_where_the_whole_replay_refit_was_kept(monkeypatch):
     fr, data = _stubs(monkeypatch, lambda t: np.zeros_like(t))
-    note = {}
-    assert CT.refit_weak(fr, data, {"kept": True}, note=note) is fr and note == {}
+    note = {"kept": True}
+    assert CT.refit_weak(fr, data, note=note) is fr and note == {"kept": True}

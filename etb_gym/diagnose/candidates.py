@@ -219,7 +219,7 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
 # ------------------------------------------------------------------------------------------ sensor side
 # The bow: a reading curve's curvature, a third parameter of sensor_offset_gain (sensor_fields builds it). In a closed
 # loop the loop holds the reading, so offset and gain trade exactly against the calibrated spring's preload and rate;
-# only a curvature is left to see. Closed loops only (run._diagnose swaps SENSOR_OFFSET_GAIN_BOWED in when every
+# only a curvature is left to see. Closed loops only (run._diagnose calls use_closed_loop_catalogue when every
 # recording is scored by the observer): in open loop, where offset and gain are seen, the bow took a flux loss's angle
 # torque first (tests/test_diagnosis.py::test_proof_finds_two_concealed_effects_at_once); measured in
 # docs/diagnosis-history.md, round 26 n26sensor.

@@ -171,6 +171,21 @@ def continue_tables(final: F.FitResult, shaped, data: Data, note: dict | None = 
     return dataclasses.replace(final, x=x)
 
 
+def halves_folds(fr: F.FitResult, view: Data, refit) -> list[dict]:
+    """A two-fold check in time on ``view`` (the replay): ``refit(masks)`` (-> parameters) fitted on the first half of
+    every recording, the second half's cost before (``fr.x``) and after, and the other way round; each fold with its
+    margin, the cost's noise sqrt(2 n). Used by run.polish_replay and :func:`refit_weak`."""
+    A = [rd.rec.t_s - rd.rec.t_s[0] < 0.5 * (rd.rec.t_s[-1] - rd.rec.t_s[0]) for rd in view.recs]
+    B = [~a for a in A]
+    folds = []
+    for fit_m, test_m in ((A, B), (B, A)):
+        x1 = refit(fit_m)
+        r0, r1 = (F.evaluate(fr.spec, view, x, masks=test_m) for x in (fr.x, x1))
+        folds.append({"held_cost_before": float(r0 @ r0), "held_cost_after": float(r1 @ r1),
+                      "margin": math.sqrt(2 * r0.size)})
+    return folds
+
+
 WEAK_NFEV = 30          # evaluations of each refit in the observer's weak directions (refit_weak)
 WEAK_MAX_DIRS = 4       # at most this many weak directions are refitted
 
@@ -196,25 +211,24 @@ def weak_directions(fr: F.FitResult, data: Data, cols: np.ndarray) -> tuple[np.n
     return V[:, w < noise][:, :WEAK_MAX_DIRS], w, noise
 
 
-def refit_weak(fr: F.FitResult, data: Data, replay_note: dict | None, significant=None,
-               note: dict | None = None) -> F.FitResult:
+def refit_weak(fr: F.FitResult, data: Data, significant=None, note: dict | None = None) -> F.FitResult:
     """``fr`` (a closed loop's final model whose replay refit run.polish_replay did not keep) refitted on the
     replay of the recorded voltage in the directions the observer residual does not identify
     (:func:`weak_directions`, over the nominal levels and the effects' formula parameters; a table's knots keep
     their values), kept only where that refit generalizes in time: fitted on the first half of the replay the
     second half's cost falls by more than its noise (sqrt(2 n)), and the other way round; and where the refit on
     the whole replay raises the observer's cost by no more than its noise and (``significant``: the verdict's
-    test) leaves no significant mismatch where ``fr`` left none.
+    test) leaves no significant mismatch where ``fr`` left none. ``note``: run.polish_replay's note (its ``kept``
+    says whether the whole replay refit was kept); the figures are added as ``note["weak"]``.
 
     Why: a closed loop that holds the plate sees the sum of the spring's torque and an effect's there, so the
     observer fit trades a nominal level against the effect along a direction it barely sees; the replay, which
     drifts where the model's static torques are off, does see it. The whole-replay refit moves every parameter,
     including those the observer pins, and was refused by its halves on such cases; restricted to the weak
-    directions the observer's optimum is kept where it is identified. ``note`` gets the figures (report.json
-    ``replay_refit.weak``)."""
+    directions the observer's optimum is kept where it is identified (report.json ``replay_refit.weak``)."""
     if not data.recs or not all(rd.residual == "observer" for rd in data.recs):
         return fr
-    if replay_note is not None and replay_note.get("kept"):
+    if note is not None and note.get("kept"):
         return fr
     from .candidates import CANDIDATES          # a table's knots and a learned term are not refitted here
     cols = np.array([k for k, (o, _) in enumerate(fr.spec.params) if o == "nominal" or o in CANDIDATES], int)
@@ -240,14 +254,7 @@ def refit_weak(fr: F.FitResult, data: Data, replay_note: dict | None, significan
                                 max_nfev=WEAK_NFEV)
             return point(out.x)
 
-        A = [rd.rec.t_s - rd.rec.t_s[0] < 0.5 * (rd.rec.t_s[-1] - rd.rec.t_s[0]) for rd in rv.recs]
-        B = [~a for a in A]
-        info["folds"] = []
-        for fit_m, test_m in ((A, B), (B, A)):
-            x1 = refit(fit_m)
-            r0, r1 = (F.evaluate(fr.spec, rv, x, masks=test_m) for x in (fr.x, x1))
-            info["folds"].append({"held_cost_before": float(r0 @ r0), "held_cost_after": float(r1 @ r1),
-                                  "margin": math.sqrt(2 * r0.size)})
+        info["folds"] = halves_folds(fr, rv, refit)
         if not all(f["held_cost_before"] - f["held_cost_after"] > f["margin"] for f in info["folds"]):
             info["rule"] = "halves refuse"
             raise _Skip

@@ -65,6 +65,11 @@ class Data:
     def noise_deg(self) -> float:
         return float(math.sqrt(np.mean([r.noise_deg ** 2 for r in self.recs])))
 
+    @property
+    def longest_s(self) -> float:
+        """The longest recording's duration [s] (0 without recordings)."""
+        return max((float(rd.rec.t_s[-1] - rd.rec.t_s[0]) for rd in self.recs if len(rd.rec.t_s) > 1), default=0.0)
+
 
 LOOP_LAGS = 8
 LOOP_Z_D2 = 15.0          # the earlier detector's threshold (closed_loop_evidence_d2; kept for the measurements)

@@ -370,13 +370,8 @@ def polish_replay(fr: F.FitResult, data: Data, note: dict | None = None, ref=Non
 
     info = {"folds": [], "kept": False}
     try:
-        A = [rd.rec.t_s - rd.rec.t_s[0] < 0.5 * (rd.rec.t_s[-1] - rd.rec.t_s[0]) for rd in rv.recs]
-        B = [~a for a in A]
-        for fit_m, test_m in ((A, B), (B, A)):
-            part = refit(fit_m)
-            r0, r1 = (F.evaluate(fr.spec, rv, x, masks=test_m) for x in (fr.x, part.x))
-            info["folds"].append({"held_cost_before": float(r0 @ r0), "held_cost_after": float(r1 @ r1),
-                                  "margin": math.sqrt(2 * r0.size)})
+        from .closed_twin import halves_folds
+        info["folds"] = halves_folds(fr, rv, lambda masks: refit(masks).x)
         gains = [f["held_cost_before"] - f["held_cost_after"] > f["margin"] for f in info["folds"]]
         halves = all(gains)
         if not any(gains):             # neither half's refit carries to the other: the whole refit is not tried
@@ -619,7 +614,7 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
             if final is not nominal0:       # the verdict's test guards the closed loop's replay refit
                 final = polish(final, data, shaped, final=True, note=replay_note, significant=significant)
                 from .closed_twin import refit_weak    # closed loops: the directions the observer does not see
-                final = refit_weak(final, data, replay_note, significant, replay_note)
+                final = refit_weak(final, data, significant, replay_note)
                 from .closed_twin import continue_tables    # closed loops: a table beyond the visited angles
                 final = continue_tables(final, shaped, data, tables_note)
             else:

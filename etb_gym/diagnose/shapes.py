@@ -369,8 +369,7 @@ def direction_offset_term(cid: str) -> MapTerm:
 def thermal_grid(data: Data, n: int = THERMAL_BRANCHES) -> np.ndarray:
     """n time constants, log-spaced from THERMAL_TAU_MIN to THERMAL_SPAN times the longest recording: a branch
     slower than the recording acts on it as a ramp, faster ones as the winding's own heating."""
-    dur = max(float(rd.rec.t_s[-1] - rd.rec.t_s[0]) for rd in data.recs)
-    return np.geomspace(THERMAL_TAU_MIN, max(THERMAL_SPAN * dur, 10.0 * THERMAL_TAU_MIN), n)
+    return np.geomspace(THERMAL_TAU_MIN, max(THERMAL_SPAN * data.longest_s, 10.0 * THERMAL_TAU_MIN), n)
 
 
 def thermal_term(cid: str, base, data: Data, voltage: bool = False) -> MapTerm:
