@@ -477,6 +477,23 @@ def test_a_table_period_that_is_a_multiple_of_the_residuals_is_flagged():
     assert U.harmonic_period(shape(56.1), None) is None
 
 
+def test_a_table_period_that_disagrees_with_the_residuals_is_flagged():
+    """unmodelled.disagreeing_period: the residual's period when it and the periodic table's differ by more than
+    PERIOD_AGREE and are not multiples of each other (harmonic_period's case, either way round), and one part of
+    the residual's structure carries it; otherwise None (detent_torque 3B open s32: table 16.9 deg, residual 23.5)."""
+    def shape(P, periodic=True, sig=("unmodelled_angle",)):
+        return {"angle": {"periodic": periodic, "period_deg": P}, "significant_terms": list(sig)}
+    ps = {"period_deg": 23.5, "one_part": True}
+    assert U.disagreeing_period(shape(16.9), ps) == 23.5
+    assert U.disagreeing_period(shape(24.0), ps) is None                 # they agree
+    assert U.disagreeing_period(shape(47.0), ps) is None                 # a multiple: harmonic_period's case
+    assert U.disagreeing_period(shape(11.75), ps) is None                # the residual's is the multiple
+    assert U.disagreeing_period(shape(16.9), {**ps, "one_part": False}) is None
+    assert U.disagreeing_period(shape(16.9, periodic=False), ps) is None
+    assert U.disagreeing_period(shape(16.9, sig=()), ps) is None
+    assert U.disagreeing_period(shape(16.9), None) is None
+
+
 def test_a_series_whose_energy_is_in_every_mth_harmonic_repeats_with_p_over_m():
     """unmodelled.reductions: a 3-harmonic series of 28.3 deg with its energy in the 2nd harmonic is a 1-harmonic
     series of 14.15 deg (round 21: H need not be a multiple of m); a 6-harmonic one in harmonics 3 and 6 repeats

@@ -52,3 +52,21 @@ def test_a_heating_time_constant_longer_than_the_recording_is_reported_as_extrap
     fast = plant.replace(effects=tuple(plant.effects) + (CoilHeating(CoilHeating.Params(
         heat_capacity_J_per_K=0.5, thermal_resistance_K_per_W=2.0)),))       # tau 1 s: settles inside it
     assert describe(fast, plant, data)["slow_states"] == []
+
+
+def test_angles_the_training_only_passed_at_speed_are_reported():
+    """twin_range.passed_only: inside the visited range, >= 5 deg where the recording spent < 5 ms per degree."""
+    plant = make_plant("3B")
+    t = np.arange(0.0, 6.0, 1e-3)
+    a = np.where(t < 3.0, 20.0, 80.0)             # holds at 20 and 80 deg ...
+    ramp = (t >= 3.0) & (t < 3.2)                  # ... and one pass 20 -> 80 deg at 300 deg/s
+    a[ramp] = 20.0 + 300.0 * (t[ramp] - 3.0)
+    a[t >= 3.2] = 80.0
+    data = SimpleNamespace(recs=[SimpleNamespace(rec=SimpleNamespace(angle_deg=a, t_s=t))])
+    d = describe(plant, plant, data)
+    (p,) = d["passed_only"]
+    assert p["from_deg"] <= 22.0 and p["to_deg"] >= 78.0 and abs(p["s_per_deg"] - 1.0 / 300.0) < 1e-3
+    assert "only at speed" in d["words"]
+    slow = np.linspace(20.0, 80.0, t.size)        # a slow sweep: 100 ms per degree
+    d = describe(plant, plant, SimpleNamespace(recs=[SimpleNamespace(rec=SimpleNamespace(angle_deg=slow, t_s=t))]))
+    assert d["passed_only"] == [] and "only at speed" not in d["words"]

@@ -282,9 +282,11 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
             log(f"  the periodic torque scales with the current: held-out {gc.heldout:.3g} against {g.heldout:.3g}")
             g = gc
         g0, g = g, U.with_series(g, nominal, data, log=log)     # the periodic torque as a Fourier series in angle
-        Q = U.harmonic_period(g0.shape, ps)
+        Q, why = U.harmonic_period(g0.shape, ps), "is a multiple of"
+        if Q is None:               # ... or the two estimates of the period disagree
+            Q, why = U.disagreeing_period(g0.shape, ps), "disagrees with"
         if Q is not None:           # the tables' period is a multiple of the residual's: the series of each
-            log(f"  the tables' period is a multiple of the residual's ({Q:.2f} deg): its series is tried too")
+            log(f"  the tables' period {why} the residual's ({Q:.2f} deg): its series is tried too")
             gq = U.with_series(U.with_period(g0, Q), nominal, data, log=log)
             if gq.series is not None and gq.heldout < g.heldout:
                 log(f"  the series of {Q:.2f} deg predicts the held-out folds better ({gq.heldout:.3g} against "

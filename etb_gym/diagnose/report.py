@@ -364,7 +364,7 @@ def markdown(result, figures) -> str:
                   f"({rt['replay_cost_tables']:.0f} with, {rt['replay_cost_formula']:.0f} without, margin "
                   f"{rt['margin']:.0f}); the twin has the effects' formulas only."]
     tr = r.get("twin_range")
-    if tr and (tr.get("beyond") or tr.get("slow_states")):
+    if tr and (tr.get("beyond") or tr.get("slow_states") or tr.get("passed_only")):
         lines += ["", f"Where the twin extrapolates: {tr['words']}."]
     figures = list(figures) + [f for f in r.get("shape_figures", []) if f not in figures]
     lines += ["", "## Figures", ""] + [f"![{f}]({f})" for f in figures]
