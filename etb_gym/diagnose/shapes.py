@@ -341,7 +341,7 @@ def family_terms(cid: str, base, data: Data) -> list:
         # torque_constant_error@2 3B s24 at 7.05x the noise, the truth at 1.03x)
         out.append(MapTerm(f"{cid}_current_torque_map", "electrical", mx.CurrentTorqueMap, grid,
                            ("delta_Nm_per_A",), 0.002, "N m/A"))
-        out.append(torque_emf_term(cid))
+        out.append(torque_emf_term(cid, data))
     return out
 
 
@@ -349,19 +349,28 @@ def family_terms(cid: str, base, data: Data) -> list:
 SPLIT_TORQUE = (-0.02, -0.01, -0.005, 0.0, 0.005, 0.01, 0.02)   # the torque constant's (spring, friction co-scaled)
 SPLIT_EMF = (-0.005, -0.0025, 0.0, 0.0025, 0.005)                # the back-EMF constant's (the torque unchanged)
 SPLIT_NFEV = 40          # the local fit from the grid's best point
+EMF_KNEE = NEAR_ZERO[0]  # torque_emf_term's knots at -+ this share of the largest current visited
 
 
-def torque_emf_term(cid: str) -> MapTerm:
-    """One coefficient: a torque per ampere added to the formula's at every current, the back-EMF left to the
-    formula's constant, i.e. a torque constant that differs from the back-EMF constant. For a PM motor both are
-    the flux linkage, but the torque constant is taken under load (armature reaction, saturation by the coil's own
-    field) and the back-EMF constant at zero current: a rig's measured k_t and k_e differ by a few per cent. The
-    formula ties them, and its fit settles between the two: torque_constant_error@2 3B s33 closed, truth's torque
-    +0.00425 N m/A, back-EMF +0.00266, the formula's +0.00304 (twin 2.31x on the open-loop held-out recording; the
-    split at the truth's values 1.08x). A table over current has the same freedom but its knots beyond the currents
-    the loop visited are anchored at 0 and its roughness holds the step at 0 A: the fit kept it at 0."""
-    return MapTerm(f"{cid}_torque_offset", "electrical", mx.CurrentTorqueMap, np.array([-1.0, 1.0]),
-                   ("delta_Nm_per_A",), 0.002, "N m/A", basis=np.ones((2, 1)), split_start=True)
+def torque_emf_term(cid: str, data: Data | None = None) -> MapTerm:
+    """A torque per ampere added to the formula's, one value for each direction of the current (knots at -+e,
+    e = EMF_KNEE of the largest current visited; the table holds each value beyond), the back-EMF left to the
+    formula's constant: a torque constant that differs from the back-EMF constant. For a PM motor both are the flux
+    linkage, but the torque constant is taken under load (armature reaction, saturation by the coil's own field)
+    and the back-EMF constant at zero current: a rig's measured k_t and k_e differ by a few per cent. The formula
+    ties them, and its fit settles between the two: torque_constant_error@2 3B s33 closed, the truth's torque
+    +0.00425 N m/A, its back-EMF +0.00266, the formula's +0.00304 (twin 2.31x on the open-loop held-out recording;
+    the split at the truth's values 1.08x). A direction the recordings did not drive the current in is not
+    identified (shapes.anchor_unidentified) and falls back to the formula there: the back-EMF constant. A table over
+    current has the same freedom, but its roughness holds the step at 0 A and the fit left it at 0."""
+    top = 1.0
+    cur = [rd.rec.current_A for rd in (data.recs if data is not None else ()) if rd.rec.current_A is not None]
+    if cur:
+        c = np.abs(np.concatenate(cur))
+        top = max(float(np.quantile(c, 0.998)), 0.1)
+    e = EMF_KNEE * top
+    return MapTerm(f"{cid}_torque_offset", "electrical", mx.CurrentTorqueMap, np.array([-e, e]),
+                   ("delta_Nm_per_A",), 0.002, "N m/A", split_start=True)
 
 
 def direction_split_term(term: MapTerm) -> MapTerm:
@@ -839,9 +848,11 @@ def split_start(spec: Spec, x0: np.ndarray, cid: str, term: MapTerm, data: Data)
     formula's optimum the offset alone only raises the residual: the spring and friction levels must follow the
     torque, and the back-EMF the other way (3B s33 closed: Gauss-Newton and a free local fit stayed at offset 0,
     observer cost 6033 / 5953; from the grid's best point 5610, the truth's point 5628). ``x0``: the formula's
-    optimum with the term's coefficient (the last) at 0. Returns x0 where the grid finds nothing lower."""
+    optimum with the term's coefficients (the last) at 0; the grid moves them together (a direction the recordings
+    did not drive the current in is pulled back to 0 by the penalized fit's anchoring). Returns x0 where the grid
+    finds nothing lower."""
     names = list(spec.values(np.zeros(len(spec.params))))
-    k_d, k_c = names.index(f"{cid}.delta_Nm_per_A"), len(x0) - 1
+    k_d, k_c = names.index(f"{cid}.delta_Nm_per_A"), np.arange(len(x0) - term.n_coef, len(x0))
     p_d = spec.params[k_d][1]
     c_m = float(getattr(spec.base.drive.params, "torque_constant_Nm_per_A", 0.0) or 0.0)
     d0 = p_d.init + p_d.scale * float(x0[k_d])
