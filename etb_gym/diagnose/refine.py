@@ -228,7 +228,7 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     if len(steps) > 1:
         # later effects may only have patched the first formula's wrong shape: the first effect with its
         # table replaces them all when it predicts held-out data as well as all of them
-        first = refine_family(steps[0].fit, steps[0].id, data, log)
+        first = refine_family(steps[0].fit, steps[0].id, data, log, split=False)
         if first is not None and first.kept:
             ids = ("nominal",) + tuple(c.id for c in final.spec.candidates)
             h_all = heldout_error(Problem.make(final.spec, final.x, ids), data)
