@@ -52,7 +52,11 @@ LAMBDAS = tuple(10.0 ** np.arange(-3.0, 3.5, 0.5))   # roughness weights (relati
 GN_ITER = 8             # Gauss-Newton iterations at most (stops when the objective falls by < 0.5 %)
 FD_STEP = 0.5            # finite-difference step in normalized units (a knot value moves by FD_STEP * scale)
 ANGLE_KNOTS = 16         # knots of a refined angle map over the stroke
-PROFILE_KNOTS = 17       # knots of a torque-constant or friction profile over the stroke (5.6 deg on 3B)
+PROFILE_KNOTS = 17       # knots of a torque-constant profile over the stroke (5.6 deg on 3B)
+FRICTION_ANGLE_KNOTS = 33  # knots of a friction level over the stroke (2.8 deg on 3B; the 17 knots of PROFILE_KNOTS
+                           # and one between each pair): a plate held at rest sticks where drive - spring = friction,
+                           # so 0.2 mN m of level error is already a held-out miss, and a band 4-8 deg wide between
+                           # 5.6 deg knots is 1-4 mN m off between them (docs/diagnosis-rounds/round27-r27friction.md)
 JAC_SUBSTEPS = 20       # Jacobians at this integrator step (the residual at the model's own)
 RIDGE = 1e-4             # a small pull of the table towards zero (collinearity with the spring)
 VISIT_MIN_S = 0.02       # a knot the recordings spent less time near (hat-weighted) is not identified by them ...
@@ -398,7 +402,7 @@ def family_term(cid: str, base, data: Data) -> MapTerm | None:
         return MapTerm(f"{cid}_map", "magnetic", mx.TorqueConstantMap, angle_grid(base, data, PROFILE_KNOTS),
                        ("delta_Nm_per_A",), 0.002, "N m/A")
     if cid == "angle_dependent_friction":
-        return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, PROFILE_KNOTS),
+        return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, FRICTION_ANGLE_KNOTS),
                        ("level_Nm",), 0.005, "N m", (("presliding_rad", 2e-3),))
     if cid == "stribeck_friction":         # its drop lies far below the top speed: STRIBECK_SPAN, same spacing
         return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7, STRIBECK_FLOOR),
