@@ -16,15 +16,20 @@ def _band(phi, centre_deg=42.0, width_deg=4.7, level=-0.010):
     return level * np.exp(-0.5 * ((phi - math.radians(centre_deg)) / math.radians(width_deg)) ** 2)
 
 
-def test_the_friction_table_over_angle_is_twice_as_fine_as_a_profile_and_nests_it():
+def test_the_friction_table_over_angle_adds_midpoints_where_the_recordings_dwelt():
+    """PROFILE_KNOTS over the stroke always; a midpoint between two of them where the recordings spent
+    VISIT_MIN_S near it (hat-weighted on the fine grid), none where they only passed or never went."""
     base = make_plant("3B")
-    data = swing_data(40.0, 20.0)
-    t = S.family_term("angle_dependent_friction", base, data)
+    data = swing_data(40.0, 20.0)                   # the plate swings about 40 deg, +-20 deg
+    g = S.family_term("angle_dependent_friction", base, data).grid
     coarse = S.angle_grid(base, data, S.PROFILE_KNOTS)
-    assert t.grid.size == S.FRICTION_ANGLE_KNOTS == 2 * (S.PROFILE_KNOTS - 1) + 1
-    assert np.allclose(t.grid[::2], coarse)           # every old knot is still a knot
-    # the torque-constant profiles keep their grid
-    assert S.family_term("shaft_flux_loss", base, data).grid.size == S.PROFILE_KNOTS
+    fine = S.angle_grid(base, data, S.FRICTION_ANGLE_KNOTS)
+    assert np.allclose(fine[::2], coarse)
+    assert all(np.isclose(g, c).any() for c in coarse)          # every profile knot is still a knot
+    mids = np.degrees([x for x in g if not np.isclose(coarse, x).any()])
+    assert mids.size > 0 and np.all(mids > 15.0) and np.all(mids < 65.0)
+    assert S.PROFILE_KNOTS < g.size < S.FRICTION_ANGLE_KNOTS
+    assert S.family_term("shaft_flux_loss", base, data).grid.size == S.PROFILE_KNOTS   # profiles keep theirs
 
 
 def test_a_narrow_friction_band_between_the_knots_is_carried_to_a_fraction_of_a_mN_m():
@@ -32,7 +37,7 @@ def test_a_narrow_friction_band_between_the_knots_is_carried_to_a_fraction_of_a_
     (angle_dependent_friction@1 3B s32's scale): 5.6 deg knots miss it by up to 1 mN m, 2.8 deg knots by a third of that."""
     base = make_plant("3B")
     data = swing_data(40.0, 20.0)
-    fine = S.family_term("angle_dependent_friction", base, data).grid
+    fine = S.angle_grid(base, data, S.FRICTION_ANGLE_KNOTS)
     coarse = S.angle_grid(base, data, S.PROFILE_KNOTS)
     x = np.linspace(fine[0], fine[-1], 3001)
 
