@@ -188,8 +188,9 @@ def angle_grid(base, data: Data, n: int, limp_home: bool = False) -> np.ndarray:
 
 def friction_angle_grid(base, data: Data) -> np.ndarray:
     """The knots of a friction level over angle: the profile grid (PROFILE_KNOTS over the stroke) and, between two
-    of its knots, the midpoint (FRICTION_ANGLE_KNOTS in all) where the recordings spent VISIT_MIN_S near it
-    (hat-weighted on the fine grid). A plate at rest sticks where drive - spring = friction, 0.16 deg per mN m on
+    of its knots, the midpoint (FRICTION_ANGLE_KNOTS in all) where the recordings spent VISIT_MIN_S near it and
+    near both of them (hat-weighted on the fine grid: a midpoint narrows its neighbours' hats, and a profile
+    knot left unvisited by that would be anchored to the formula alone in the middle of the table). A plate at rest sticks where drive - spring = friction, 0.16 deg per mN m on
     3B, and a friction band 4-8 deg wide between 5.6 deg knots is 1-4 mN m off between them
     (angle_dependent_friction@1 3B open s32: the best 17-knot table replays the held-out at 2.4x, the best 33-knot
     one at 1.6x). Where the recordings only passed, a midpoint would not be identified (a closed loop's fit put
@@ -199,7 +200,7 @@ def friction_angle_grid(base, data: Data) -> np.ndarray:
     dt = float(np.mean([rd.rec.dt_s for rd in data.recs]))
     seen = _hat_time(data_angles_rad(data), fine, dt) >= VISIT_MIN_S
     keep = np.ones(fine.size, bool)
-    keep[1::2] = seen[1::2]
+    keep[1::2] = seen[1::2] & seen[:-1:2] & seen[2::2]      # and its two profile knots (their hats narrow too)
     return fine[keep]
 
 
