@@ -52,7 +52,9 @@ LAMBDAS = tuple(10.0 ** np.arange(-3.0, 3.5, 0.5))   # roughness weights (relati
 GN_ITER = 8             # Gauss-Newton iterations at most (stops when the objective falls by < 0.5 %)
 FD_STEP = 0.5            # finite-difference step in normalized units (a knot value moves by FD_STEP * scale)
 ANGLE_KNOTS = 16         # knots of a refined angle map over the stroke
-PROFILE_KNOTS = 17       # knots of a torque-constant or friction profile over the stroke (5.6 deg on 3B)
+PROFILE_KNOTS = 17       # knots of a torque-constant profile over the stroke (5.6 deg on 3B)
+FRICTION_ANGLE_KNOTS = 33  # at most this many knots of a friction level over the stroke: PROFILE_KNOTS' 17 and one
+                           # between each pair where the recordings dwelt (2.8 deg on 3B; friction_angle_grid)
 JAC_SUBSTEPS = 20       # Jacobians at this integrator step (the residual at the model's own)
 RIDGE = 1e-4             # a small pull of the table towards zero (collinearity with the spring)
 VISIT_MIN_S = 0.02       # a knot the recordings spent less time near (hat-weighted) is not identified by them ...
@@ -184,6 +186,24 @@ def angle_grid(base, data: Data, n: int, limp_home: bool = False) -> np.ndarray:
         else:                      # ... else one more knot (never moving a stop's)
             g = np.sort(np.append(g, lh))
     return g
+
+
+def friction_angle_grid(base, data: Data) -> np.ndarray:
+    """The knots of a friction level over angle: the profile grid (PROFILE_KNOTS over the stroke) and, between two
+    of its knots, the midpoint (FRICTION_ANGLE_KNOTS in all) where the recordings spent VISIT_MIN_S near it and
+    near both of them (hat-weighted on the fine grid: a midpoint narrows its neighbours' hats, and a profile
+    knot left unvisited by that would be anchored to the formula alone in the middle of the table). A plate at rest sticks where drive - spring = friction, 0.16 deg per mN m on
+    3B, and a friction band 4-8 deg wide between 5.6 deg knots is 1-4 mN m off between them
+    (angle_dependent_friction@1 3B open s32: the best 17-knot table replays the held-out at 2.4x, the best 33-knot
+    one at 1.6x). Where the recordings only passed, a midpoint would not be identified (a closed loop's fit put
+    14-22 mN m spikes there, or the formula alone where it was anchored), so the grid stays coarse there
+    (docs/diagnosis-rounds/round27-r27friction.md)."""
+    fine = angle_grid(base, data, FRICTION_ANGLE_KNOTS)
+    dt = float(np.mean([rd.rec.dt_s for rd in data.recs]))
+    seen = _hat_time(data_angles_rad(data), fine, dt) >= VISIT_MIN_S
+    keep = np.ones(fine.size, bool)
+    keep[1::2] = seen[1::2] & seen[:-1:2] & seen[2::2]      # and its two profile knots (their hats narrow too)
+    return fine[keep]
 
 
 def _lh(base) -> float:
@@ -429,7 +449,7 @@ def family_term(cid: str, base, data: Data) -> MapTerm | None:
         return MapTerm(f"{cid}_map", "magnetic", mx.TorqueConstantMap, angle_grid(base, data, PROFILE_KNOTS),
                        ("delta_Nm_per_A",), 0.002, "N m/A")
     if cid == "angle_dependent_friction":
-        return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, angle_grid(base, data, PROFILE_KNOTS),
+        return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, friction_angle_grid(base, data),
                        ("level_Nm",), 0.005, "N m", (("presliding_rad", 2e-3),))
     if cid == "stribeck_friction":         # its drop lies far below the top speed: STRIBECK_SPAN, same spacing
         return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7, STRIBECK_FLOOR),
