@@ -355,6 +355,35 @@ def test_a_voltage_side_leader_that_spoils_the_current_yields_to_a_torque(monkey
         assert "airflow_torque" not in ev["current_ms"]                # not significant
 
 
+@pytest.mark.parametrize("ms, expect", [
+    # the current model, the reading map leading, the motion-side rival (mean square, noise units)
+    ((37.9, 47.1, 35.4), "shaft_flux_loss"),   # measured: the two-effect test (flux loss + coil heating, open loop)
+    ((37.9, 37.0, 20.0), "shaft_flux_loss"),   # the rival accounts for the current, the map does not
+    ((37.9, 25.0, 20.0), None),                # the map accounts for a share too: not twice less than the rival
+    ((37.9, 47.1, 40.0), None),                # the rival's fit takes the current away too
+    ((37.9, 39.0, 37.0), None),                # the map barely moves the current: no evidence either way
+    ((1.2, 1.19, 1.21), None),                 # the current is at the noise (measured: sensor_offset_gain@1 3B s28)
+    ((None, None, None), None),                # no current recorded
+])
+def test_a_reading_map_yields_to_a_torque_when_the_current_sees_the_motion(monkeypatch, ms, expect):
+    """In an open loop the current's back-EMF follows the true motion, not the reading: a reading map whose fit
+    moves the current away from the recording (or accounts for none of it) yields to a torque whose fit accounts
+    for it (discriminate.reading_or_motion)."""
+    ids = ("ref", "sensor_offset_gain", "shaft_flux_loss")
+    table = dict(zip(ids, ms))
+    monkeypatch.setattr(D, "current_ms", lambda fr, data: table.get(fr.x, 99.0))
+    fits = {c: _sfit(c) for c in ids}
+    screened = [(-57, "sensor_offset_gain", fits["sensor_offset_gain"]), (-57, "coil_heating", _sfit("coil")),
+                (-52, "shaft_flux_loss", fits["shaft_flux_loss"]), (-5, "airflow_torque", _sfit("airflow"))]
+    ev = D.reading_or_motion(fits["ref"], screened, "sensor_offset_gain", None, 10.0, log=lambda *a: None)
+    assert (ev["winner"] if ev else None) == expect
+    if ev:
+        assert ev["rivals"] == ["sensor_offset_gain"] and set(ev["current_ms"]) == {"current model", *ids[1:]}
+    # a motion-side leader, or no significant motion-side rival: no question asked
+    assert D.reading_or_motion(fits["ref"], screened, "shaft_flux_loss", None, 10.0, log=lambda *a: None) is None
+    assert D.reading_or_motion(fits["ref"], screened[:2], "sensor_offset_gain", None, 10.0, log=lambda *a: None) is None
+
+
 @pytest.mark.parametrize("closed_shift, open_shift, spread, expect", [
     (-5.4, -5.3, 0.4, True),     # measured: sensor_offset_gain@1 3B s24 open, the stop fit's change at both stops
     (0.0, -5.3, 0.4, False),     # a stop moved at one stop only: a stop's own effect

@@ -196,10 +196,10 @@ def test_the_offset_and_gain_candidate_bends_with_its_bow_and_keeps_a_learned_cu
     """sensor_offset_gain's bow (round 26): a parabola over the travel, zero at the stops, the bow at mid-travel; in
     a closed loop offset and gain trade against the calibrated spring, the bow cannot. A learned curve held in
     Spec.sensor_map is added to it (the curve is learned on top of the bow), not replaced by it."""
-    from etb_gym.diagnose.candidates import SENSOR_OFFSET_GAIN_BOWED
+    from etb_gym.diagnose.candidates import CANDIDATES
     from etb_gym.diagnose.model import Spec
     plant = make_plant("3B")
-    spec = Spec(plant, (SENSOR_OFFSET_GAIN_BOWED,))
+    spec = Spec(plant, (CANDIDATES["sensor_offset_gain"],))
     vals = {"sensor_offset_gain.offset_deg": 0.2, "sensor_offset_gain.gain": 1.01, "sensor_offset_gain.bow_deg": 0.12}
     _, s = spec.build(spec.x_from_values(vals))
     lo, hi = math.degrees(plant.angle_min_rad), math.degrees(plant.angle_max_rad)
@@ -214,20 +214,3 @@ def test_the_offset_and_gain_candidate_bends_with_its_bow_and_keeps_a_learned_cu
     np.testing.assert_allclose(s2.apply(np.arange(4) * DT, phi), 1.01 * (phi + bow + extra) + 0.2, atol=1e-3)
     _, s0 = held.build(held.x_from_values({**vals, "sensor_offset_gain.bow_deg": 0.0}))
     assert s0.curve == learned                                    # no bow: the learned curve as it was
-
-
-def test_closed_loop_catalogue_is_scoped_to_one_diagnosis():
-    """The bowed reading map lasts only inside diagnosis_catalogue() (restored on any exit, also an error), and
-    cannot be switched on outside it."""
-    from etb_gym.diagnose import candidates as c
-    plain = c.CANDIDATES["sensor_offset_gain"]
-    with pytest.raises(RuntimeError, match="diagnosis_catalogue"):
-        c.use_closed_loop_catalogue()
-    with pytest.raises(KeyError):
-        with c.diagnosis_catalogue():
-            c.use_closed_loop_catalogue()
-            assert c.CANDIDATES["sensor_offset_gain"] is c.SENSOR_OFFSET_GAIN_BOWED
-            raise KeyError("a failing diagnosis")
-    assert c.CANDIDATES["sensor_offset_gain"] is plain
-    with pytest.raises(RuntimeError):
-        c.use_closed_loop_catalogue()

@@ -13,10 +13,8 @@ diagnosed (:func:`nameplate`), so starting values, steps and bounds follow the u
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
-import threading
 
 import numpy as np
 
@@ -208,22 +206,23 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
               (P("slope_Nm", 0.0, -0.3, 0.3, 0.02, "N m", ref="friction_Nm"),
                P("curvature_Nm", 0.0, -0.8, 0.8, 0.05, "N m", ref="friction_Nm")), fx.AngleDependentFriction,
               off=(("slope_Nm", 0.0), ("curvature_Nm", 0.0))),
-    Candidate("sensor_offset_gain", "sensing", "position sensor offset or gain error",
-              (P("offset_deg", 0.0, -10.0, 10.0, 0.1, "deg"), P("gain", 1.0, 0.7, 1.3, 0.01, "1")),
-              off=(("offset_deg", 0.0), ("gain", 1.0))),
+    Candidate("sensor_offset_gain", "sensing", "position sensor offset, gain or curvature error",
+              (P("offset_deg", 0.0, -10.0, 10.0, 0.1, "deg"), P("gain", 1.0, 0.7, 1.3, 0.01, "1"),
+               P("bow_deg", 0.0, -3.0, 3.0, 0.05, "deg")),           # the bow: BOW_PARAM, below
+              off=(("offset_deg", 0.0), ("gain", 1.0), ("bow_deg", 0.0))),
     Candidate("sensor_delay", "sensing", "transport delay in the position measurement",
               (P("delay_s", 0.001, 0.0, 0.05, 0.002, "s"),), off=(("delay_s", 0.0),)),
     Candidate("sensor_quantization", "sensing", "position sensor resolution coarser than assumed", ()),
 )}
 
 # ------------------------------------------------------------------------------------------ sensor side
-# The bow: a reading curve's curvature, a third parameter of sensor_offset_gain (sensor_fields builds it). In a closed
+# The bow: a reading curve's curvature, the third parameter of sensor_offset_gain (sensor_fields builds it). In a closed
 # loop the loop holds the reading, so offset and gain trade exactly against the calibrated spring's preload and rate;
-# only a curvature is left to see. Closed loops only (run._diagnose calls use_closed_loop_catalogue when every
-# recording is scored by the observer): in open loop, where offset and gain are seen, the bow took a flux loss's angle
-# torque first (tests/test_diagnosis.py::test_proof_finds_two_concealed_effects_at_once); measured in
-# docs/diagnosis-history.md, round 26 n26sensor.
-BOW_PARAM = FitParam("bow_deg", 0.0, -3.0, 3.0, 0.05, "deg")
+# only a curvature is left to see (docs/diagnosis-history.md, round 26 n26sensor). In open loops too since round 27
+# (t27bow): there a static torque over angle moves the plate's rest angle, which a bowed reading curve mimics, so a
+# reading map that leads is asked whether the current (its back-EMF follows the true motion, not the reading) sides
+# with a torque (discriminate.reading_or_motion).
+BOW_PARAM = CANDIDATES["sensor_offset_gain"].fit[2]
 BOW_KNOTS = 17            # knots of the bow's curve over the travel (a parabola's interpolation error: bow / 256)
 
 
@@ -259,41 +258,7 @@ def sensor_fields(fields: dict, plant, held: dict | None) -> dict:
     return out
 
 
-SENSOR_OFFSET_GAIN_BOWED = dataclasses.replace(
-    CANDIDATES["sensor_offset_gain"], description="position sensor offset, gain or curvature error",
-    fit=CANDIDATES["sensor_offset_gain"].fit + (BOW_PARAM,), off=CANDIDATES["sensor_offset_gain"].off + (("bow_deg", 0.0),))
-
 FITTED_CANDIDATES = tuple(k for k, c in CANDIDATES.items() if c.fit)
-
-# One diagnosis at a time may change the catalogue (the closed loops' bowed reading map): the swap is process-wide,
-# read by this process's fits and by the fork pool's workers (explain.Runner), so diagnoses in threads of one process
-# take turns here rather than see each other's catalogue.
-_CATALOGUE_LOCK = threading.RLock()
-_IN_SCOPE = threading.local()
-
-
-@contextlib.contextmanager
-def diagnosis_catalogue():
-    """The scope of one diagnosis's catalogue: :func:`use_closed_loop_catalogue` inside it lasts until it ends (the
-    plain catalogue is restored on any exit); concurrent diagnoses in threads wait for each other."""
-    with _CATALOGUE_LOCK:
-        plain, depth = dict(CANDIDATES), getattr(_IN_SCOPE, "depth", 0)
-        _IN_SCOPE.depth = depth + 1
-        try:
-            yield
-        finally:
-            _IN_SCOPE.depth = depth
-            CANDIDATES.clear()
-            CANDIDATES.update(plain)
-
-
-def use_closed_loop_catalogue():
-    """Closed loops only (every recording scored by the observer): ``sensor_offset_gain`` carries the bow
-    (SENSOR_OFFSET_GAIN_BOWED). Call inside :func:`diagnosis_catalogue`."""
-    if not getattr(_IN_SCOPE, "depth", 0):
-        raise RuntimeError("use_closed_loop_catalogue() changes the catalogue: call it inside diagnosis_catalogue()")
-    CANDIDATES["sensor_offset_gain"] = SENSOR_OFFSET_GAIN_BOWED
-
 
 def candidate(cid: str) -> Candidate:
     if cid not in CANDIDATES:

@@ -172,6 +172,8 @@ CURRENT_MS_MIN = 4.0  # the current model's current residual stands above the no
                       # twice the noise in RMS; a clean recording leaves about 1.3)
 CURRENT_SHARE = 0.25  # a voltage-side candidate accounts for at least this share of it ...
 CURRENT_DOMINANCE = 2.0   # ... and for at least this many times what the leader accounts for
+READING_WORSE = 0.1   # a reading map whose fit raises the current model's current residual by this share moves the
+                      # motion away from what the current saw (reading_or_motion)
 CURRENT_WORSE = 2.0   # a voltage-side leader whose fit leaves this many times the current model's current residual
                       # (and at least CURRENT_MS_MIN) buys the angle with the current: a torque-side rival goes first
 
@@ -283,6 +285,54 @@ def torque_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_m
                           "an effect in the coil's voltage balance changes the current first: a voltage-side leader "
                           f"whose fit leaves {CURRENT_WORSE:g}x the current model's current residual or more (and at "
                           f"least {CURRENT_MS_MIN:g}) yields to a torque-side candidate whose fit does not", log)
+
+
+def reading_or_motion(ref: F.FitResult, screened: list, leader: str, data: Data, bic_min: float,
+                      log=print) -> dict | None:
+    """In the reading or in the motion? ``leader`` is a sensing candidate (a reading map: CANDIDATES[...].sensor)
+    and a motion-side candidate (a torque on the plate or the drive: neither a sensor nor VOLTAGE_SIDE) screened
+    significant (dBIC < -``bic_min``). In an open loop the voltage is the input and the coil's current follows
+    L di/dt = u - R i - k(phi) omega: the electrical equation sees the *true* motion (its back-EMF), never the
+    reading. A reading map changes only what the sensor reports, so its fit moves the current only as far as it
+    puts the calibrated nominal parameters back; a torque changes the motion and with it the back-EMF (a flux
+    loss changes k(phi) itself). So when the current model (``ref``) leaves a current residual above the noise
+    (mean square >= CURRENT_MS_MIN) and a motion-side candidate's screening fit accounts for at least
+    CURRENT_SHARE of it and for CURRENT_DOMINANCE times what the reading map's accounts for, the mismatch lives
+    in the motion: that candidate (best dBIC first) is named. Returns the evidence (as :func:`voltage_side`'s)
+    or None.
+
+    Measured (tests/test_diagnosis.py::test_proof_finds_two_concealed_effects_at_once, shaft flux loss + coil
+    heating, open loop, with the reading map's bow): the bowed map led the screening (dBIC -57 against -52 for
+    the flux loss; held-out +76 % against +91 %) and its fit left the current residual at 47.1 of the current
+    model's 37.9 (docs/diagnosis-rounds/round27-t27bow.md)."""
+    if leader not in CANDIDATES or not CANDIDATES[leader].sensor:
+        return None
+    fits = {c: fr for _, c, fr in screened}
+    motion = [c for d, c, _ in screened if c in CANDIDATES and not CANDIDATES[c].sensor and c not in VOLTAGE_SIDE
+              and d < -bic_min]
+    if leader not in fits or not motion:
+        return None
+    m0 = current_ms(ref, data)
+    if m0 is None or not m0 >= CURRENT_MS_MIN:
+        return None
+    ms = {"current model": m0, leader: current_ms(fits[leader], data)}
+    for c in motion:
+        ms[c] = current_ms(fits[c], data)
+
+    def share(c):                   # the share of the current model's current residual that c accounts for
+        return (m0 - ms[c]) / m0 if ms[c] is not None and math.isfinite(ms[c]) else -math.inf
+
+    lead = share(leader)
+    # the rival accounts for the current; or the map's fit takes the current away from the recording (a reading map
+    # moves the current only through the nominal parameters its fit moves: right, it moves them towards the true
+    # motion) while the rival's does not
+    ok = [c for c in motion if (share(c) >= CURRENT_SHARE and share(c) >= CURRENT_DOMINANCE * max(lead, 0.0))
+          or (lead <= -READING_WORSE and share(c) >= 0.0)]
+    return _side_evidence("in the reading or in the motion", leader, ok, ms, "a torque that changes the motion",
+                          "the coil's current sees the true motion (its back-EMF), not the reading: a motion-side "
+                          f"candidate that accounts for at least {CURRENT_SHARE:.0%} of the current model's current "
+                          f"residual (above the noise) and {CURRENT_DOMINANCE:g}x what the reading map accounts for "
+                          "is named", log)
 
 
 # ------------------------------------------------------------------------------------ where the gain lives

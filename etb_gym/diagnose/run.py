@@ -512,10 +512,8 @@ def _base_and_data(opts: Options, recs: list) -> tuple[Plant, Data]:
 def diagnose(recordings, model: str = "3B", out=None, options: Options | None = None, **kw) -> "Result":
     """Diagnose ``recordings`` (paths or :class:`Recording`) against ``model``; write the report to ``out``."""
     from .threads import one_blas_thread
-    from .candidates import diagnosis_catalogue
-    # small linear algebra, parallel fits: threads only contend; the catalogue this diagnosis may change (the closed
-    # loops' bowed reading map) is restored when it ends
-    with diagnosis_catalogue(), one_blas_thread():
+    # small linear algebra, parallel fits: threads only contend
+    with one_blas_thread():
         return _diagnose(recordings, model, out, options, kw)
 
 
@@ -531,11 +529,6 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
     log = (tqdm.write if opts.progress else print) if opts.verbose else (lambda *a, **k: None)
     base, data = _base_and_data(opts, recs)
     fit_data = restart_view(data)           # what the fits see (polish: why two residuals)
-    if all(rd.residual == "observer" for rd in data.recs):
-        # closed loops only: the loop holds the reading, so offset and gain trade with the calibrated spring and only
-        # a reading map's curvature is left to see (candidates.BOW_PARAM; docs/diagnosis-history.md, round 26 n26sensor)
-        from .candidates import use_closed_loop_catalogue
-        use_closed_loop_catalogue()
     dt = recs[0].dt_s
     log(f"etb-gym diagnose: {len(recs)} recording(s), {sum(r.n for r in recs)} samples at {1 / dt:.0f} Hz, "
         f"model {base.model or 'custom'}; noise floor {data.noise_deg:.4f} deg; {base.substeps} substeps per sample")
