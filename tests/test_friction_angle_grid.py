@@ -1,4 +1,4 @@
-"""The friction-over-angle table's knots (shapes.FRICTION_ANGLE_KNOTS; docs/diagnosis-rounds/round27-r27friction.md):
+"""The friction-over-angle table's knots (shapes.FRICTION_ANGLE_KNOTS; docs/diagnosis-history.md, round 27 r27friction):
 a plate at rest sticks where drive - spring = friction, so the table must carry a friction band a few degrees wide
 between its knots to a fraction of a mN m."""
 from __future__ import annotations

@@ -304,7 +304,7 @@ def reading_or_motion(ref: F.FitResult, screened: list, leader: str, data: Data,
     Measured (tests/test_diagnosis.py::test_proof_finds_two_concealed_effects_at_once, shaft flux loss + coil
     heating, open loop, with the reading map's bow): the bowed map led the screening (dBIC -57 against -52 for
     the flux loss; held-out +76 % against +91 %) and its fit left the current residual at 47.1 of the current
-    model's 37.9 (docs/diagnosis-rounds/round27-t27bow.md)."""
+    model's 37.9 (docs/diagnosis-history.md, round 27 t27bow)."""
     if leader not in CANDIDATES or not CANDIDATES[leader].sensor:
         return None
     fits = {c: fr for _, c, fr in screened}

@@ -197,7 +197,7 @@ def friction_angle_grid(base, data: Data) -> np.ndarray:
     (angle_dependent_friction@1 3B open s32: the best 17-knot table replays the held-out at 2.4x, the best 33-knot
     one at 1.6x). Where the recordings only passed, a midpoint would not be identified (a closed loop's fit put
     14-22 mN m spikes there, or the formula alone where it was anchored), so the grid stays coarse there
-    (docs/diagnosis-rounds/round27-r27friction.md)."""
+    (docs/diagnosis-history.md, round 27 r27friction)."""
     fine = angle_grid(base, data, FRICTION_ANGLE_KNOTS)
     dt = float(np.mean([rd.rec.dt_s for rd in data.recs]))
     seen = _hat_time(data_angles_rad(data), fine, dt) >= VISIT_MIN_S
