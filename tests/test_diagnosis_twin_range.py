@@ -54,6 +54,23 @@ def test_a_heating_time_constant_longer_than_the_recording_is_reported_as_extrap
     assert describe(fast, plant, data)["slow_states"] == []
 
 
+def test_a_thermal_network_branch_slower_than_the_recording_is_reported_as_extrapolated_in_time():
+    """A learned Foster network's slowest branch (3x the recording by construction) counts only when it carries
+    heat: the state's settled level is then an extrapolation, as for one slow node."""
+    from etb_gym.components.effects_thermal import ThermalNetwork
+    plant = make_plant("3B")
+    t = np.linspace(0.0, 6.0, 6001)
+    data = SimpleNamespace(recs=[SimpleNamespace(rec=SimpleNamespace(angle_deg=np.linspace(10.0, 60.0, t.size),
+                                                                     t_s=t))])
+
+    def with_network(r):
+        net = ThermalNetwork(ThermalNetwork.Params(time_constant_s=(0.5, 3.0, 18.0), thermal_resistance_K_per_W=r))
+        return plant.replace(effects=tuple(plant.effects) + (net,))
+    d = describe(with_network((1.0, 2.0, 4.0)), plant, data)["slow_states"]
+    assert [(s["parameter"], s["tau_s"]) for s in d] == [("time_constant_s[2]", 18.0)]
+    assert describe(with_network((1.0, 2.0, 0.0)), plant, data)["slow_states"] == []   # the slow branch is empty
+
+
 def test_angles_the_training_only_passed_at_speed_are_reported():
     """twin_range.passed_only: inside the visited range, >= 5 deg where the recording spent < 5 ms per degree."""
     plant = make_plant("3B")

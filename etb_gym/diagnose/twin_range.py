@@ -78,6 +78,7 @@ def slow_states(plant, duration_s: float, over: float = SLOW_OVER) -> list[dict]
         if getattr(c, "role", "") != "effect":
             continue
         prm = getattr(c, "params", None)
+        out += _slow_branches(c, prm, duration_s, over)
         for name in dir(type(prm)):
             if name.endswith("time_constant_s") and isinstance(getattr(type(prm), name, None), property):
                 try:
@@ -88,6 +89,24 @@ def slow_states(plant, duration_s: float, over: float = SLOW_OVER) -> list[dict]
                     out.append({"effect": getattr(c, "effect_id", None) or c.__class__.__name__, "parameter": name,
                                 "tau_s": tau, "recording_s": duration_s})
     return out
+
+
+def _slow_branches(c, prm, duration_s: float, over: float) -> list[dict]:
+    """A learned network's branches (a tuple field ``time_constant_s`` on a grid, e.g. effect.thermal_network's
+    Foster branches, whose slowest is 3x the recording by construction) that carry a nonzero value in any of the
+    table's value fields and whose time constant exceeds ``over`` x ``duration_s``; the slowest such branch only."""
+    taus = getattr(prm, "time_constant_s", None) if getattr(type(prm), "grid", None) == "time_constant_s" else None
+    if not isinstance(taus, (tuple, list)):
+        return []
+    rows = [getattr(prm, f, ()) or () for f in getattr(type(prm), "values", ())]
+    slow = [(float(tau), k) for k, tau in enumerate(taus)
+            if math.isfinite(float(tau)) and float(tau) > over * duration_s
+            and any(k < len(r) and abs(float(r[k])) > 0.0 for r in rows)]
+    if not slow:
+        return []
+    tau, k = max(slow)
+    return [{"effect": getattr(c, "effect_id", None) or c.__class__.__name__, "parameter": f"time_constant_s[{k}]",
+             "tau_s": tau, "recording_s": duration_s}]
 
 
 def passed_only(data, lo: float, hi: float) -> list[dict]:
@@ -179,5 +198,5 @@ def describe(plant, nominal_plant, data, shaped=None, tables_note=None) -> dict:
         out["words"] += ("; in time, " + ", ".join(
             f"{s['effect']}'s fitted time constant {s['tau_s']:.1f} s exceeds the {s['recording_s']:.1f} s recording"
             for s in out["slow_states"]) + ": the state's settled level (under a longer hold) is extrapolated by "
-            "its one-time-constant law, not evidence")
+            "its fitted exponential law, not evidence")
     return out
