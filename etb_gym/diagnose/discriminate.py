@@ -222,22 +222,33 @@ def voltage_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_
     volts = [c for d, c, _ in screened if c in VOLTAGE_SIDE and d < -bic_min]
     if leader not in fits or not volts:
         return None
-    m0 = current_ms(ref, data)
-    if m0 is None or not m0 >= CURRENT_MS_MIN:
+    got = _current_shares(ref, fits, leader, volts, data)
+    if got is None:
         return None
-    ms = {"current model": m0, leader: current_ms(fits[leader], data)}
-    for c in volts:
-        ms[c] = current_ms(fits[c], data)
-
-    def share(c):                   # the share of the current model's current residual that c accounts for
-        return (m0 - ms[c]) / m0 if ms[c] is not None else -math.inf
-
+    ms, share = got
     ok = [c for c in volts if share(c) >= CURRENT_SHARE and share(c) >= CURRENT_DOMINANCE * max(share(leader), 0.0)]
     return _side_evidence("voltage or torque side", leader, ok, ms, "a torque on the plate or a sensor error",
                           "an effect on the plate changes the current only through the back-EMF: a voltage-side "
                           f"candidate that accounts for at least {CURRENT_SHARE:.0%} of the current model's current "
                           f"residual (above the noise) and {CURRENT_DOMINANCE:g}x what the leader accounts for is "
                           "named", log)
+
+
+def _current_shares(ref: F.FitResult, fits: dict, leader: str, rivals: list, data: Data):
+    """(ms, share) for :func:`voltage_side` / :func:`reading_or_motion`: the current residuals (mean square, noise
+    units) of the current model ``ref``, the leader's and each rival's screening fit, and share(c), the part of the
+    current model's current residual that c's fit accounts for (-inf where c's cannot be computed); None when the
+    current model's current residual is not above the noise (CURRENT_MS_MIN) or no recording carries a current."""
+    m0 = current_ms(ref, data)
+    if m0 is None or not m0 >= CURRENT_MS_MIN:
+        return None
+    ms = {"current model": m0, leader: current_ms(fits[leader], data)}
+    for c in rivals:
+        ms[c] = current_ms(fits[c], data)
+
+    def share(c):
+        return (m0 - ms[c]) / m0 if ms[c] is not None and math.isfinite(ms[c]) else -math.inf
+    return ms, share
 
 
 def _side_evidence(title: str, leader: str, ok: list, ms: dict, other: str, rule: str, log) -> dict | None:
@@ -312,16 +323,10 @@ def reading_or_motion(ref: F.FitResult, screened: list, leader: str, data: Data,
               and d < -bic_min]
     if leader not in fits or not motion:
         return None
-    m0 = current_ms(ref, data)
-    if m0 is None or not m0 >= CURRENT_MS_MIN:
+    got = _current_shares(ref, fits, leader, motion, data)
+    if got is None:
         return None
-    ms = {"current model": m0, leader: current_ms(fits[leader], data)}
-    for c in motion:
-        ms[c] = current_ms(fits[c], data)
-
-    def share(c):                   # the share of the current model's current residual that c accounts for
-        return (m0 - ms[c]) / m0 if ms[c] is not None and math.isfinite(ms[c]) else -math.inf
-
+    ms, share = got
     lead = share(leader)
     # the rival accounts for the current; or the map's fit takes the current away from the recording (a reading map
     # moves the current only through the nominal parameters its fit moves: right, it moves them towards the true

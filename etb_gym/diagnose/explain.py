@@ -10,8 +10,8 @@ One round:
   2. validate the TOP_K candidates with dBIC < -BIC_MIN are cross-validated over two folds of alternating
               time blocks (fit on one, score the other); the current model is cross-validated the same way
   2a/2a'/2b   open loops: a voltage-side candidate first when it accounts for the current's residual
-              (_voltage_side); a torque before a leading reading map when the current (which sees the true
-              motion, not the reading) sides with it (_reading_or_motion); a friction vs a torque that does not turn with the motion compared by converged
+              (_current_side); a torque before a leading reading map when the current (which sees the true
+              motion, not the reading) sides with it (_current_side too); a friction vs a torque that does not turn with the motion compared by converged
               fits (_direction); close angle-torque rivals by their tables (_tell_apart, both loops); a near
               tie between a family acting at every angle and one with a region of action, by where the gain
               lives (_region, both loops)
@@ -416,28 +416,17 @@ def _open_loop(data: Data) -> bool:
     return all(rd.residual == "replay" for rd in data.recs)
 
 
-def _voltage_side(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float, rnd: int):
-    """Step 2a (open loops): is the mismatch in the coil's voltage balance rather than on the plate
-    (discriminate.voltage_side: the current's residual)? Returns the evidence and puts its choice first in
-    ``gains``, or None."""
+def _current_side(ctx: _Ctx, test: str, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float,
+                  rnd: int):
+    """Step 2a (open loops), where the coil's current decides: ``test`` "voltage_side" (is the mismatch in the
+    coil's voltage balance rather than on the plate?) or "reading_or_motion" (a reading map leads: the current
+    sees the true motion, not the reading); the function of that name in discriminate. Returns the evidence and
+    puts its choice first in ``gains``, or None."""
     if not _open_loop(ctx.data):
         return None
-    ctx.describe(f"round {rnd + 1}: voltage or torque side")
-    evidence = D.voltage_side(ref, screened, gains[0][2], ctx.data, BIC_MIN, ctx.log)
-    if evidence is not None:
-        _winner_first(ctx, cur, ref, screened, gains, cv0, evidence["winner"])
-    return evidence
-
-
-def _reading_or_motion(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float,
-                       rnd: int):
-    """Step 2a (open loops): a reading map leads; is the mismatch in the reading or in the motion
-    (discriminate.reading_or_motion: the current sees the true motion)? Returns the evidence and puts its choice
-    first in ``gains``, or None."""
-    if not _open_loop(ctx.data):
-        return None
-    ctx.describe(f"round {rnd + 1}: in the reading or in the motion")
-    evidence = D.reading_or_motion(ref, screened, gains[0][2], ctx.data, BIC_MIN, ctx.log)
+    ctx.describe(f"round {rnd + 1}: " + {"voltage_side": "voltage or torque side",
+                                         "reading_or_motion": "in the reading or in the motion"}[test])
+    evidence = getattr(D, test)(ref, screened, gains[0][2], ctx.data, BIC_MIN, ctx.log)
     if evidence is not None:
         _winner_first(ctx, cur, ref, screened, gains, cv0, evidence["winner"])
     return evidence
@@ -638,8 +627,8 @@ def select(cur: F.FitResult, data: Data, runner: Runner, candidate_ids, signific
                 return disturbance.resolved(z, z_new)
         if passing:
             passing.sort(key=lambda s: s[1])     # the held-out gain gates, the likelihood on all data ranks
-            evidence = (_voltage_side(ctx, cur, ref, screened, passing, cv0, rnd)
-                        or _reading_or_motion(ctx, cur, ref, screened, passing, cv0, rnd)
+            evidence = (_current_side(ctx, "voltage_side", cur, ref, screened, passing, cv0, rnd)
+                        or _current_side(ctx, "reading_or_motion", cur, ref, screened, passing, cv0, rnd)
                         or _direction(ctx, cur, ref, screened, passing, cv0, rnd)
                         or _tell_apart(ctx, cur, ref, screened, passing, cv_gain, cv0, rnd)
                         or _region(ctx, cur, ref, screened, passing, cv0, rnd))
