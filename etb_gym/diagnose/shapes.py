@@ -939,15 +939,6 @@ def _formula_component(fr: F.FitResult, cid: str):
     return next((e for e in plant.effects if getattr(e, "effect_id", None) == cid), None)
 
 
-def creep_scored(term: MapTerm) -> bool:
-    """Is ``term`` a friction table over speed, whose keep an open-loop recording decides on the continuous
-    replay's held-out folds (:func:`refine_family`)? Its low-speed knots set where a held plate sticks and
-    breaks away; on the fit's view every segment restarts at the readings, so the folds there barely see them
-    (stribeck_friction@2 3B s34 open: held-out 5.03 -> 4.93 on the fit's view, not kept; 1.74 -> 1.58 on the
-    continuous replay, twin 10.9x -> 5.6x; round 28)."""
-    return term.family == "friction" and term.cls.grid_field == "speed_rad_s"
-
-
 def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bool = True) -> Refinement | None:
     """Refine accepted candidate ``cid`` of ``final`` by its table (None: no table form for the family); with
     several table forms (:func:`family_terms`) the one with the lowest held-out error. ``split`` False: without
@@ -971,8 +962,6 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bo
     best = None
     comp = _formula_component(final, cid)
     h_cur = None                # the formula's held-out error with the current's rows scored too (once)
-    h_cont = None               # the formula's held-out error on the continuous replay (once; creep_scored)
-    creep = len(views) > 1 and creep_scored(terms[0])     # the family's own table decides for its other forms too
     best_score = math.inf
     for term in terms:
         spec_m = final.spec.with_candidate(term.candidate())
@@ -985,24 +974,13 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bo
         # a heating's states persist over the restarted segments (Effect.persistent_states): the fit's view sees
         # its history already, and on the continuous replay the refitted nominal parameters alone passed the
         # folds (coil_heating@1 3B s24 open: the network ~0, kept at held-out 1.03 -> 0.93, the twin 2.31x -> 2.72x)
-        d_map = math.inf
         for view in (views[:1] if term.score_current or term.split_start else views):
             pf_v = fit_penalized(pb, view, log=None)
             h_v = heldout_error(dataclasses.replace(pf_v.problem, x=pf_v.fit.x), data, pf_v.lams,
                                 pf_v.jac if view is data else None)
-            # a friction over speed shows where the plate creeps and sticks: on the restarted segments each hold
-            # starts again at the readings, so the folds there barely see the level at low speed; its fit and
-            # keep are chosen on the continuous replay's folds (the twin's own replay: creep_scored); the
-            # Refinement keeps the fit view's errors for refine's comparisons with other models
-            c_v = (heldout_error(dataclasses.replace(pf_v.problem, x=pf_v.fit.x), views[1], pf_v.lams,
-                                 pf_v.jac if view is not data else None) if creep else h_v)
-            if pf is None or c_v < d_map:
-                h_map, d_map, pf, cont = h_v, c_v, pf_v, view is not data
-        d_formula = h_formula                        # the scores that decide: d_formula, d_map
-        if creep:
-            if h_cont is None:
-                h_cont = heldout_error(pb_formula, views[1])
-            d_formula = h_cont
+            if pf is None or h_v < h_map:
+                h_map, pf, cont = h_v, pf_v, view is not data
+        d_formula, d_map = h_formula, h_map          # the scores that decide
         if term.score_current:
             # a term of the coil's voltage balance (the heating) is scored on the current's rows too: in a closed
             # loop the angle hides it, the current shows it (a two-node heating's one-node fit: held-out angle at
@@ -1018,8 +996,7 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bo
         log(f"  shape of {cid}: {term.id} over {term.cls.grid_field} ({term.grid.size} knots, {term.n_coef} "
             f"coefficients, roughness weight "
             f"{pf.lams_rel[0]:.2g}{', fitted on the continuous replay' if cont else ''}): held-out "
-            f"{'(angle and current) ' if term.score_current else ''}"
-            f"{'(continuous replay) ' if creep else ''}{d_formula:.3g} -> "
+            f"{'(angle and current) ' if term.score_current else ''}{d_formula:.3g} -> "
             f"{d_map:.3g} ({'kept' if kept else 'not kept'})")
         if d_map < best_score:
             best_score = d_map
