@@ -17,7 +17,7 @@ import sys
 import numpy as np
 
 SPEEDS = (0.001, 0.003, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 3.0, 10.0)      # |omega| [rad/s]
-SETTLE = (0.05, 200)          # (step [s], steps) of each bristle's exact update at a frozen speed
+SETTLE_RAD, SETTLE_STEPS = 0.05, 50   # each bristle's exact update at a frozen speed: steps over this travel
 
 
 def steady_friction(plant, omega: float, phi: float = 0.6) -> float:
@@ -31,12 +31,13 @@ def steady_friction(plant, omega: float, phi: float = 0.6) -> float:
         carry = getattr(c, "carry", None)
         g = (carry(phi, omega, 0.0, p),) if carry is not None else ()
         args = (0.0, phi, omega, 0.0, 0.0, s, p)
-        for _ in range(SETTLE[1]):
+        h = SETTLE_RAD / max(abs(omega), 1e-6) / SETTLE_STEPS     # 25 presliding distances of 2e-3 rad
+        for _ in range(SETTLE_STEPS):
             if c.advance is not None:
-                c.advance(SETTLE[0], *args, *g)
+                c.advance(h, *args, *g)
             else:
                 c.kernel(*args, ds, *g)
-                s += SETTLE[0] * ds
+                s += h * ds
         tq = float(c.kernel(*args, ds, *g)[0])
         tot += -tq if omega >= 0 else tq
     return tot
