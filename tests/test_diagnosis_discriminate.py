@@ -156,6 +156,52 @@ def test_airflow_and_spring_asymmetry_are_told_apart_by_where_the_angle_torque_a
     assert U.angle_torque_family(a, np.zeros(a.size), w, lh) == "airflow_torque"
 
 
+def test_a_spring_off_the_nameplate_above_limp_home_does_not_hide_the_kink_below_it():
+    """Round 28 (spring_asymmetry@2 random closed s35, limp-home 7.9 deg): the learned angle table carried a line
+    over the opening (+60 -> +28 mN m, what a preload and rate off the nameplate make) and the asymmetry's kink
+    below limp-home (-52 mN m at 6 deg); the raw share below limp-home (0.27) said airflow. The line through the
+    knots beyond limp-home is taken out first; an airflow bump keeps its curvature over the opening."""
+    from etb_gym.diagnose import unmodelled as U
+    a = np.radians(np.concatenate([[0.46, 5.95, 7.94], np.linspace(11.45, 82.87, 14)]))
+    lh = math.radians(7.94)
+    w = np.where(a < np.radians(75.0), 200.0, 0.0)
+    line = 0.0625 - 0.034 * (a - lh) / np.radians(64.0)
+    spring = line + np.where(a < lh + 1e-9, np.array([0.02, -0.115, -0.021] + [0.0] * 14), 0.0)
+    assert U.angle_torque_family(a, spring, w, lh) == "spring_asymmetry"
+    bump = -0.03 * np.sin(np.pi * np.clip(a - lh, 0.0, None) / np.radians(70.0))
+    assert U.angle_torque_family(a, line + bump, w, lh) == "airflow_torque"
+    # a line alone (a preload and rate off on both sides) has no kink: not the spring's asymmetry
+    assert U.angle_torque_family(a, line, w, lh) == "airflow_torque"
+    # too few knots beyond limp-home visited to take a line out: the raw share decides
+    few = np.where(a < np.radians(20.0), 200.0, 0.0)
+    assert U.angle_torque_family(a, spring, few, lh) == "spring_asymmetry"
+
+
+@pytest.mark.parametrize("h_air, expect", [(5.91, "airflow_torque"), (7.0, "spring_asymmetry")])
+def test_airflow_and_spring_alternatives_within_the_generic_slack_are_told_apart_by_the_angle_table(monkeypatch,
+                                                                                                 h_air, expect):
+    """Round 28 (airflow_torque@1 random open s34): the catalogue alternative took spring asymmetry by held-out
+    5.40 against 5.91 (formulas alone 107 / 108), outside FAMILY_TIE, though the generic angle torque acted over
+    the opening. Both add the same angle table: within GAIN_OUT of each other the side rule decides."""
+    from etb_gym.diagnose import unmodelled as U
+    grid = np.radians(np.linspace(0.0, 90.0, 73))
+    lh = math.radians(7.9)
+    tab = type("Tab", (), {"params": type("P", (), {"angle_rad": tuple(grid), "torque_Nm": tuple(
+        -0.008 * np.sin(np.pi * np.clip(grid - lh, 0.0, None) / np.radians(80.0)))})()})()
+    gen = _stub_generic(["unmodelled_angle"], 7.08)
+    gen.tables = {"unmodelled_angle": tab}
+    h = {"airflow_torque": h_air, "spring_asymmetry": 5.40}
+    monkeypatch.setattr(U, "_try_family", lambda cur, cid, data, log: U.FamilyAlternative(cid, _Alt(), None, h[cid],
+                                                                                           100.0))
+    monkeypatch.setattr(U, "_rms_deg", lambda spec, x, data: 1.0 if x is _Cur.x else 0.5)
+    monkeypatch.setattr(U, "_visited", lambda g, data: np.full(g.size, 50.0))
+    cur = type("C", (_Cur,), {"spec": type("S", (), {"candidates": (), "base": type("B", (), {
+        "limp_home_rad": lh})()})()})()
+    alt = U.catalogue_alternative(gen, cur, {"unmodelled_angle": ("airflow_torque", "spring_asymmetry")}, None,
+                                  lambda fr: True, log=lambda *a: None)
+    assert alt.id == expect
+
+
 def test_the_side_rule_needs_an_angle_table_that_won_and_moved(monkeypatch):
     """Tables that all score the same have not moved (a closed-loop Stribeck case: 9.41 for all three): the
     formulas' order stands; an angle table that won outright decides airflow vs spring by where it acts."""
