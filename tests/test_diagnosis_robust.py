@@ -85,3 +85,32 @@ def test_a_candidate_tied_to_a_missing_component_is_refused_not_a_key_error():
     spec = Spec(Plant.from_dict(d)).with_candidate(CANDIDATES["spring_asymmetry"])
     with pytest.raises(ValueError, match=r"spring_asymmetry needs the plant's spring\.limp_home_rad.*no spring component"):
         spec.build(np.zeros(len(spec.params)))
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--jobs", "100000"], ["--jobs", "100000", "an integer >= 1 and <="]),
+    (["--jobs", "1_0"], ["--jobs", "'1_0' is not a whole number"]),
+    (["--substeps", "1000000000"], ["--substeps", "1000000000", "positive integer <= 1000"]),
+    (["--sensor-resolution-deg", "1e300"], ["--sensor-resolution-deg", "1e300", "at most 10 deg"]),
+    (["--sensor-resolution-deg", "1_0"], ["--sensor-resolution-deg", "'1_0' is not a number"]),
+    (["--out", ""], ["--out", "'' is empty", "output folder"]),
+    (["--plant", " "], ["--plant", "' ' is empty", "plant file"]),
+])
+def test_option_values_out_of_reason_are_refused_naming_option_and_value(tmp_path, monkeypatch, capsys, args,
+                                                                         words):
+    """Regression (round 28 option fuzz): --jobs 100000 forked 100000 workers, --substeps 1e9 ran forever,
+    --sensor-resolution-deg 1e300 was assumed, "1_0" was read as 10, and an empty --out wrote the report into the
+    working folder while an empty --plant silently meant none; now each is refused before any work (exit 2)."""
+    from etb_gym.diagnose import cli as dcli
+    reached = []
+    monkeypatch.setattr(dcli, "_diagnose", lambda *a: reached.append(a))
+    rec = tmp_path / "r.csv"
+    t = np.arange(600) * 1e-3
+    np.savetxt(rec, np.column_stack([t, np.where(t > 0.2, 3.0, 0.0), np.full(t.size, 7.0)]), delimiter=",",
+               header="time_s,voltage_V,angle_deg", comments="")
+    argv = [str(rec), *([] if "--out" in args else ["--out", str(tmp_path / "o")]), *args]
+    code = dcli.main(argv)
+    err = capsys.readouterr().err
+    assert code == 2 and not reached and "Traceback" not in err
+    for w in words:
+        assert w in err, (w, err)
