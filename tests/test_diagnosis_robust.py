@@ -114,3 +114,36 @@ def test_option_values_out_of_reason_are_refused_naming_option_and_value(tmp_pat
     assert code == 2 and not reached and "Traceback" not in err
     for w in words:
         assert w in err, (w, err)
+
+
+def test_fuzz_draws_concealed_effects_without_changing_the_clean_draws():
+    """The fuzz's effect cases (round 28): a share of the cases carries a proof family and truth shape, drawn from
+    the case's own seed, so --effects 0 draws exactly the clean cases of before; the truth carries the effect,
+    the user's plant file does not, the family is the first candidate, and such a truth is recorded by
+    etb_gym's plant (IvpPlant re-implements no effect)."""
+    clean = [fuzz.draw_case(np.random.default_rng(3), k) for k in range(4)]
+    some = [fuzz.draw_case(np.random.default_rng(3), k, 1.0) for k in range(4)]
+    for a, b in zip(clean, some):
+        assert a["effect"] is None and b["effect"] is not None
+        assert {k: v for k, v in a.items() if not k.startswith("effect")} == \
+            {k: v for k, v in b.items() if not k.startswith("effect")}
+    c = dict(some[0], effect="backlash@1", effect_scale=0.5, source="ivp", closed=False)
+    truth, file_plant, sensor_kw = fuzz.truth_and_file(c)
+    assert truth.effects and not file_plant.effects and sensor_kw == {}
+    assert not fuzz.ivp_source(c, truth) and fuzz.candidates(c)[0] == "backlash" and len(fuzz.candidates(c)) == 2
+    c = dict(c, effect="sensor_delay@2")
+    truth, _, sensor_kw = fuzz.truth_and_file(c)
+    assert not truth.effects and "reading" in sensor_kw and fuzz.ivp_source(c, truth)
+    assert fuzz.candidates(dict(c, effect="detent_torque")) == c["candidates"]
+
+
+def test_fuzz_twin_check_loads_simulates_and_drives_the_env(tmp_path):
+    """check_twin: a plant file loads back, simulates a recording's voltage within its stops and runs the env;
+    a file that does not load is a BUG naming the file."""
+    from etb_gym.diagnose.synthetic import make_recording
+    from etb_gym.plantfile import save_plant
+    p = make_plant("3B", substeps=10)
+    rec = make_recording(p, np.random.default_rng(0), duration_s=0.6)
+    assert fuzz.check_twin(save_plant(p, tmp_path / "twin.toml"), rec).startswith("ok: replay")
+    (tmp_path / "bad.toml").write_text("[drive]\nkind = 3\n")
+    assert fuzz.check_twin(tmp_path / "bad.toml", rec).startswith("BUG: the twin bad.toml:")
