@@ -367,8 +367,11 @@ def run_case(c: dict, timeout_s: float, keep: Path | None = None) -> dict:
         ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         try:             # the limit is on the diagnosis's CPU time (a loaded machine stretches the wall clock)
             p = subprocess.run(cmd, capture_output=True, text=True, timeout=WALL_PER_CPU * timeout_s,
+                               env={**os.environ, "PYTHONWARNINGS": "ignore,default::RuntimeWarning"},
                                preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_CPU, (int(timeout_s),) * 2))
             code, err = p.returncode, p.stderr
+            row["runtime_warnings"] = sorted({w.strip()[-200:] for w in err.splitlines() if "RuntimeWarning" in w})
+            err = "\n".join(w for w in err.splitlines() if "Warning" not in w and not w.startswith("  "))
             if code in (-signal.SIGXCPU, -signal.SIGKILL):
                 code, err = None, f"CPU time over {timeout_s:g} s"
         except subprocess.TimeoutExpired:
