@@ -445,7 +445,8 @@ def summary(rows: list) -> str:
                          f"{r.get('effects')}, twin {r.get('twin', '-')}")
     for r in rows:
         if r["outcome"] != "ok":
-            lines.append(f"- case {r['case']} {r['model']} {r['source']} {r['fs_hz']:.0f} Hz {r['format']} "
+            lines.append(f"- case {r['case']} {r['model']} {r.get('source_used', r['source'])} {r['fs_hz']:.0f} Hz "
+                         f"{r['format']} "
                          f"{'closed' if r['closed'] else 'open'}{'' if r.get('plant_file', True) else ' --model only'}: {r['outcome']}: {r['detail'][:300]}")
     return "\n".join(lines)
 
@@ -480,7 +481,8 @@ def main(argv=None) -> int:
     for c in cases:
         r = run_case(c, a.timeout, Path(a.keep) if a.keep else None)
         rows.append(r)
-        print(f"case {c['case']} {c['model']} {c['source']} {c['fs_hz']:.0f} Hz {c['duration_s']:g} s "
+        print(f"case {c['case']} {c['model']} {r.get('source_used', c['source'])} {c['fs_hz']:.0f} Hz "
+              f"{c['duration_s']:g} s "
               f"{'closed' if c['closed'] else 'open'} {c['format']} truth {c.get('effect') or 'clean'}: "
               f"{r['outcome']} ({r['time_s']:.0f} s, CPU {r.get('cpu_s') or 0:.0f} s) "
               f"{r['detail'][:160]}", flush=True)

@@ -147,3 +147,17 @@ def test_fuzz_twin_check_loads_simulates_and_drives_the_env(tmp_path):
     assert fuzz.check_twin(save_plant(p, tmp_path / "twin.toml"), rec).startswith("ok: replay")
     (tmp_path / "bad.toml").write_text("[drive]\nkind = 3\n")
     assert fuzz.check_twin(tmp_path / "bad.toml", rec).startswith("BUG: the twin bad.toml:")
+
+
+def test_the_catalogue_alternative_stays_within_the_users_library():
+    """Regression (round 28 effect fuzz): refine's catalogue alternative tried every family of the generic
+    tables' terms, whatever --candidates allowed: with --candidates angle_dependent_friction supply_drop a 2C closed
+    loop was "explained" by shaft_flux_loss. Now the run passes its library and only its families are tried."""
+    import inspect
+    from etb_gym.diagnose import run
+    from etb_gym.diagnose.refine import FAMILY_OF_TERM, families_of_term
+    assert families_of_term() == FAMILY_OF_TERM
+    lib = families_of_term(("angle_dependent_friction", "supply_drop"))
+    assert lib["unmodelled_current"] == () and lib["unmodelled_angle"] == ("angle_dependent_friction",)
+    assert lib["unmodelled_voltage"] == ("supply_drop",)
+    assert "library=tuple(opts.candidates)" in inspect.getsource(run)
