@@ -21,6 +21,7 @@ Rows (JSON lines, one per case) go to --out; exit status 1 when a BUG was found.
 
     nice -n 10 python scripts/fuzz_diagnose.py --cases 24 --seed 0 --out out/fuzz.jsonl
     python scripts/fuzz_diagnose.py --summary out/fuzz.jsonl
+    python scripts/fuzz_diagnose.py --rerun out/fuzz.jsonl 5 out/case5     # one case again, with its log
 """
 from __future__ import annotations
 
@@ -451,6 +452,27 @@ def summary(rows: list) -> str:
     return "\n".join(lines)
 
 
+def rerun(rows_file: Path, case: int, d: Path) -> int:
+    """A case of a rows file rebuilt from its settings (the draw's fields) in ``d`` and diagnosed with the log."""
+    from etb_gym.plantfile import save_plant
+    rows = [json.loads(x) for x in rows_file.read_text().splitlines() if x.strip()]
+    r = next((x for x in rows if x["case"] == case), None)
+    if r is None:
+        raise SystemExit(f"{rows_file}: no case {case}")
+    c = {k: r.get(k) for k in draw_case(np.random.default_rng(0), 0, 1.0)}
+    d.mkdir(parents=True, exist_ok=True)
+    truth, file_plant, sensor_kw = truth_and_file(c)
+    rec_path = write(recording(truth, file_plant, c, "rec" + c["format"], sensor_kw), c, d / ("rec" + c["format"]))
+    if c.get("file_period"):
+        file_plant = file_plant.replace(control_period_s=1e-3, substeps=20)
+    pf = save_plant(file_plant, d / "plant.toml")
+    cmd = [str(Path(sys.executable).with_name("etb-gym")), "diagnose", str(rec_path),
+           *(["--plant", str(pf)] if c.get("plant_file", True) else []), "--model", c["model"], "--out",
+           str(d / "out"), "--force", "--jobs", "1", "--max-effects", "1", "--candidates", *candidates(c)]
+    print(" ".join(cmd), flush=True)
+    return subprocess.run(cmd).returncode
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
@@ -466,7 +488,12 @@ def main(argv=None) -> int:
     ap.add_argument("--effects", type=float, default=0.5, metavar="SHARE",
                     help="share of cases whose truth carries a concealed effect (a proof family and truth shape; "
                          "default 0.5; 0: the clean cases of rounds 10-22, same draws)")
+    ap.add_argument("--rerun", nargs=3, metavar=("ROWS", "CASE", "DIR"),
+                    help="rebuild case CASE of a rows file (its recording and plant file, in DIR) and run the command "
+                         "on it with its log shown, then exit")
     a = ap.parse_args(argv)
+    if a.rerun:
+        return rerun(Path(a.rerun[0]), int(a.rerun[1]), Path(a.rerun[2]))
     if a.summary:
         rows = [json.loads(x) for x in Path(a.summary).read_text().splitlines() if x.strip()]
         print(summary(rows))
