@@ -85,3 +85,79 @@ def test_a_candidate_tied_to_a_missing_component_is_refused_not_a_key_error():
     spec = Spec(Plant.from_dict(d)).with_candidate(CANDIDATES["spring_asymmetry"])
     with pytest.raises(ValueError, match=r"spring_asymmetry needs the plant's spring\.limp_home_rad.*no spring component"):
         spec.build(np.zeros(len(spec.params)))
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--jobs", "100000"], ["--jobs", "100000", "an integer >= 1 and <="]),
+    (["--jobs", "1_0"], ["--jobs", "'1_0' is not a whole number"]),
+    (["--substeps", "1000000000"], ["--substeps", "1000000000", "positive integer <= 1000"]),
+    (["--sensor-resolution-deg", "1e300"], ["--sensor-resolution-deg", "1e300", "at most 10 deg"]),
+    (["--sensor-resolution-deg", "1_0"], ["--sensor-resolution-deg", "'1_0' is not a number"]),
+    (["--out", ""], ["--out", "'' is empty", "output folder"]),
+    (["--plant", " "], ["--plant", "' ' is empty", "plant file"]),
+])
+def test_option_values_out_of_reason_are_refused_naming_option_and_value(tmp_path, monkeypatch, capsys, args,
+                                                                         words):
+    """Regression (round 28 option fuzz): --jobs 100000 forked 100000 workers, --substeps 1e9 ran forever,
+    --sensor-resolution-deg 1e300 was assumed, "1_0" was read as 10, and an empty --out wrote the report into the
+    working folder while an empty --plant silently meant none; now each is refused before any work (exit 2)."""
+    from etb_gym.diagnose import cli as dcli
+    reached = []
+    monkeypatch.setattr(dcli, "_diagnose", lambda *a: reached.append(a))
+    rec = tmp_path / "r.csv"
+    t = np.arange(600) * 1e-3
+    np.savetxt(rec, np.column_stack([t, np.where(t > 0.2, 3.0, 0.0), np.full(t.size, 7.0)]), delimiter=",",
+               header="time_s,voltage_V,angle_deg", comments="")
+    argv = [str(rec), *([] if "--out" in args else ["--out", str(tmp_path / "o")]), *args]
+    code = dcli.main(argv)
+    err = capsys.readouterr().err
+    assert code == 2 and not reached and "Traceback" not in err
+    for w in words:
+        assert w in err, (w, err)
+
+
+def test_fuzz_draws_concealed_effects_without_changing_the_clean_draws():
+    """The fuzz's effect cases (round 28): a share of the cases carries a proof family and truth shape, drawn from
+    the case's own seed, so --effects 0 draws exactly the clean cases of before; the truth carries the effect,
+    the user's plant file does not, the family is the first candidate, and such a truth is recorded by
+    etb_gym's plant (IvpPlant re-implements no effect)."""
+    clean = [fuzz.draw_case(np.random.default_rng(3), k) for k in range(4)]
+    some = [fuzz.draw_case(np.random.default_rng(3), k, 1.0) for k in range(4)]
+    for a, b in zip(clean, some):
+        assert a["effect"] is None and b["effect"] is not None
+        assert {k: v for k, v in a.items() if not k.startswith("effect")} == \
+            {k: v for k, v in b.items() if not k.startswith("effect")}
+    c = dict(some[0], effect="backlash@1", effect_scale=0.5, source="ivp", closed=False)
+    truth, file_plant, sensor_kw = fuzz.truth_and_file(c)
+    assert truth.effects and not file_plant.effects and sensor_kw == {}
+    assert not fuzz.ivp_source(c, truth) and fuzz.candidates(c)[0] == "backlash" and len(fuzz.candidates(c)) == 2
+    c = dict(c, effect="sensor_delay@2")
+    truth, _, sensor_kw = fuzz.truth_and_file(c)
+    assert not truth.effects and "reading" in sensor_kw and fuzz.ivp_source(c, truth)
+    assert fuzz.candidates(dict(c, effect="detent_torque")) == c["candidates"]
+
+
+def test_fuzz_twin_check_loads_simulates_and_drives_the_env(tmp_path):
+    """check_twin: a plant file loads back, simulates a recording's voltage within its stops and runs the env;
+    a file that does not load is a BUG naming the file."""
+    from etb_gym.diagnose.synthetic import make_recording
+    from etb_gym.plantfile import save_plant
+    p = make_plant("3B", substeps=10)
+    rec = make_recording(p, np.random.default_rng(0), duration_s=0.6)
+    assert fuzz.check_twin(save_plant(p, tmp_path / "twin.toml"), rec).startswith("ok: replay")
+    (tmp_path / "bad.toml").write_text("[drive]\nkind = 3\n")
+    assert fuzz.check_twin(tmp_path / "bad.toml", rec).startswith("BUG: the twin bad.toml:")
+
+
+def test_the_catalogue_alternative_stays_within_the_users_library():
+    """Regression (round 28 effect fuzz): refine's catalogue alternative tried every family of the generic
+    tables' terms, whatever --candidates allowed: with --candidates angle_dependent_friction supply_drop a 2C closed
+    loop was "explained" by shaft_flux_loss. Now the run passes its library and only its families are tried."""
+    import inspect
+    from etb_gym.diagnose import run
+    from etb_gym.diagnose.refine import FAMILY_OF_TERM, families_of_term
+    assert families_of_term() == FAMILY_OF_TERM
+    lib = families_of_term(("angle_dependent_friction", "supply_drop"))
+    assert lib["unmodelled_current"] == () and lib["unmodelled_angle"] == ("angle_dependent_friction",)
+    assert lib["unmodelled_voltage"] == ("supply_drop",)
+    assert "library=tuple(opts.candidates)" in inspect.getsource(run)

@@ -28,28 +28,45 @@ class InputError(ValueError):
 
 
 # ------------------------------------------------------------------------------------------ argument types
-def _int_at_least(lo: int, what: str):
+def _int_at_least(lo: int, what: str, hi: int | None = None):
     def conv(s: str) -> int:
         try:
+            if "_" in s:            # Python reads "1_0" as 10: a mistyped value must not become another one
+                raise ValueError(s)
             v = int(s)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{s!r} is not a whole number: expected {what}") from None
-        if v < lo:
+        if v < lo or (hi is not None and v > hi):
             raise argparse.ArgumentTypeError(f"{v}: expected {what}")
         return v
     return conv
 
 
-def _positive_finite(what: str):
+def _positive_finite(what: str, hi: float | None = None):
     def conv(s: str) -> float:
         try:
+            if "_" in s:
+                raise ValueError(s)
             v = float(s)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{s!r} is not a number: expected {what}") from None
-        if not (math.isfinite(v) and v > 0):
+        if not (math.isfinite(v) and v > 0) or (hi is not None and v > hi):
             raise argparse.ArgumentTypeError(f"{s}: expected {what}")
         return v
     return conv
+
+
+def _nonempty(what: str):
+    def conv(s: str) -> str:
+        if not s.strip():
+            raise argparse.ArgumentTypeError(f"{s!r} is empty: expected {what}")
+        return s
+    return conv
+
+
+MAX_JOBS = max(8, 2 * (os.cpu_count() or 1))   # --jobs forks this many workers at once: more only thrash
+MAX_SUBSTEPS = 1000                             # 1000 per sample: far finer than the truth's 200 (5 us at 1 kHz)
+MAX_RESOLUTION_DEG = 10.0                       # a coarser sensor step cannot resolve a throttle's stroke
 
 
 def add_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -58,18 +75,24 @@ def add_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
     p.add_argument("recordings", nargs="+", metavar="REC", help="recording files (.csv, .npz, .mat); see docs/recordings.md")
     p.add_argument("--model", default="3B", type=str.upper, choices=MODELS, help="nominal model (default 3B)")
-    p.add_argument("--plant", default=None, help="start from this plant file (.toml/.json) instead of --model")
-    p.add_argument("--out", required=True, help="output folder (created; must not hold a report unless --force)")
+    p.add_argument("--plant", default=None, type=_nonempty("a plant file (.toml/.json)"),
+                   help="start from this plant file (.toml/.json) instead of --model")
+    p.add_argument("--out", required=True, type=_nonempty("an output folder"),
+                   help="output folder (created; must not hold a report unless --force)")
     p.add_argument("--force", action="store_true",
                    help="replace a report already in --out (default: refuse, so no result is lost)")
     p.add_argument("--candidates", nargs="+", default=None, metavar="ID", choices=list(CANDIDATES),
                    help="restrict the library (default: all): " + ", ".join(CANDIDATES))
     p.add_argument("--max-effects", type=_int_at_least(0, "an integer >= 0"), default=3,
                    help="at most this many effects (default 3)")
-    p.add_argument("--jobs", type=_int_at_least(1, "an integer >= 1"), default=2, help="parallel fits (default 2)")
-    p.add_argument("--sensor-resolution-deg", type=_positive_finite("a finite angle > 0 deg"), default=None,
+    p.add_argument("--jobs", type=_int_at_least(1, f"an integer >= 1 and <= {MAX_JOBS}", MAX_JOBS), default=2,
+                   help=f"parallel fits (default 2, at most {MAX_JOBS})")
+    p.add_argument("--sensor-resolution-deg", default=None,
+                   type=_positive_finite(f"a finite angle > 0 deg, at most {MAX_RESOLUTION_DEG:g} deg",
+                                         MAX_RESOLUTION_DEG),
                    help="the resolution the model assumes for the angle sensor (default 90/4096 deg)")
-    p.add_argument("--substeps", type=_int_at_least(1, "a positive integer"), default=None,
+    p.add_argument("--substeps", type=_int_at_least(1, f"a positive integer <= {MAX_SUBSTEPS}", MAX_SUBSTEPS),
+                   default=None,
                    help="integrator substeps per sample (default: chosen so the model's own error stays below "
                         "half the noise floor, 5..80)")
     p.add_argument("--residual", choices=("auto", "replay", "observer"), default="auto",

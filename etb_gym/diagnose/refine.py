@@ -36,6 +36,13 @@ FAMILY_OF_TERM = {"unmodelled_angle": ("airflow_torque", "spring_asymmetry", "an
                   "unmodelled_voltage": ("supply_drop", "coil_heating", "inductance_saturation")}
 
 
+def families_of_term(library=None) -> dict:
+    """FAMILY_OF_TERM restricted to ``library`` (the user's --candidates; None: all): a family the user left out
+    of the library is never tried as the catalogue alternative, so never named (round 28 fuzz: with --candidates
+    angle_dependent_friction supply_drop, a 2C closed loop was "explained" by shaft_flux_loss)."""
+    return {t: tuple(c for c in fams if library is None or c in library) for t, fams in FAMILY_OF_TERM.items()}
+
+
 @dataclasses.dataclass
 class Outcome:
     """What :func:`refine` did: refined family tables, the generic fit (if run) and whether it replaced
@@ -208,7 +215,7 @@ def _resolves(persistent, base: F.FitResult, log):
 
 
 def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, significant, log=print,
-           outside: bool = True, persistent=None, refused: tuple = ()):
+           outside: bool = True, persistent=None, refused: tuple = (), library=None):
     """After the greedy selection: refine each accepted family's shape by its table (kept when the held-out
     error falls by MIN_GAIN), then, if a significant residual remains (or nothing was accepted, or a learned
     angle table looks periodic), fit the generic tables of :mod:`.unmodelled` and let them replace the
@@ -220,7 +227,8 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     calibrated nominal model (unmodelled.catalogue_alternative; in a closed loop also accepted when they
     account for the structure); a family so named replaces the steps the generic tables displaced. ``refused``:
     the screening's leader that the selection did not accept (explain.select); in a closed loop it is tried as an
-    alternative too. Returns (final fit, steps, Outcome)."""
+    alternative too. ``library``: the candidates the user allowed (None: all); only they are tried as alternatives.
+    Returns (final fit, steps, Outcome)."""
     from . import unmodelled as U
     res = Outcome()
     cur = final
@@ -320,7 +328,8 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
             return cur, steps, res
         # the generic tables extend the calibrated nominal model, so a family that does their job is tried on
         # it too (not on top of the catalogue effects they displace), and accepted by the same closed-loop rule
-        alt = U.catalogue_alternative(g, nominal, FAMILY_OF_TERM, data, significant, log=log, resolves=resolves,
+        alt = U.catalogue_alternative(g, nominal, families_of_term(library), data, significant, log=log,
+                                      resolves=resolves,
                                       screened=refused if resolves is not None else ())
         if alt is not None:           # a catalogue family with its own table does the generic tables' job
             from .explain import Step, dbic

@@ -597,7 +597,8 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
             from .refine import refine   # shapes from the data, physics outside the catalogue (diagnosis-shapes.md)
             formula, formula_steps = final, list(steps)
             final, steps, shaped = refine(nominal0, final, steps, fit_data, significant, log=log,
-                                           persistent=persistent, refused=tuple(refused))
+                                           persistent=persistent, refused=tuple(refused),
+                                           library=tuple(opts.candidates))
             from .closed_twin import check_tables   # closed loops: a table must help the replay too
             final = check_tables(formula, final, formula_steps, steps, shaped, data, significant, tables_note)
             if tables_note and not tables_note["kept"]:
