@@ -215,7 +215,7 @@ def test_a_series_grown_from_a_smaller_one_starts_from_its_fitted_nominal_parame
     def fake_fit(pb, data, iters):
         starts.append(np.asarray(pb.x, float).copy())
         raise ValueError("stop after the start")
-    monkeypatch.setattr(U, "fit_penalized", fake_fit)
+    monkeypatch.setattr(OS, "fit_penalized", fake_fit)
     quiet = lambda *a: None  # noqa: E731
     assert OS.fit_series(nominal, data, 9.0, ("angle",), 6, {"cos_Nm_1": 0.01}, quiet, grown_from=grown) is None
     assert OS.fit_series(nominal, data, 9.0, ("angle",), 6, {"cos_Nm_1": 0.01}, quiet) is None
@@ -547,9 +547,9 @@ def test_a_reduced_series_grows_its_harmonics_back_at_its_own_period(monkeypatch
         calls.append((round(P, 6), H, period_free, heldout, grown_from.harmonics))
         return SimpleNamespace(harmonics=H, heldout=math.inf, parts=parts, component=grown_from.component)
     scores = {3: 50.0, 6: 49.0}                      # 6 harmonics: less than SERIES_MIN_GAIN better, not kept
-    monkeypatch.setattr(U, "fit_series", fake_fit)
-    monkeypatch.setattr(U, "_coefficients", lambda s: {})
-    monkeypatch.setattr(U, "heldout_period_held", lambda s, data: scores[s.harmonics])
+    monkeypatch.setattr(OS, "fit_series", fake_fit)
+    monkeypatch.setattr(OS, "_coefficients", lambda s: {})
+    monkeypatch.setattr(OS, "heldout_period_held", lambda s, data: scores[s.harmonics])
     quiet = lambda *a: None  # noqa: E731
     s = OS.regrown(one, None, None, quiet)
     assert s.harmonics == 3 and s.heldout == 50.0
