@@ -490,17 +490,17 @@ def test_a_leading_map_stands_against_a_stop_that_only_shifts_the_reading(monkey
 
 
 def test_a_ripple_per_ampere_takes_the_angle_tables_periodogram_as_second_estimate():
-    """unmodelled._periodogram: a residual's period found per ampere (key current) is checked against the current
+    """outside_series._periodogram: a residual's period found per ampere (key current) is checked against the current
     table's periodogram when it has one, else the angle table's: in a closed loop the current follows the angle and
     the angle table absorbs the ripple (current_ripple random closed s27 was named airflow_torque)."""
-    from etb_gym.diagnose import unmodelled as U
+    from etb_gym.diagnose import outside_series as S
     angle = {"period_deg": 21.0, "periodic_r2": 0.90, "cycles": 2.4}
-    assert U._periodogram({"angle": angle, "current": {"periodic": False}}, "current") is angle
+    assert S._periodogram({"angle": angle, "current": {"periodic": False}}, "current") is angle
     own = {"period_deg": 22.0, "periodic_r2": 0.7}
-    assert U._periodogram({"angle": angle, "current": own}, "current") is own
+    assert S._periodogram({"angle": angle, "current": own}, "current") is own
     weak = {"period_deg": 30.0, "periodic_r2": 0.1}
-    assert U._periodogram({"angle": weak, "current": {}}, "current") == {}
-    assert U._periodogram({"angle": angle}, "angle") is angle
+    assert S._periodogram({"angle": weak, "current": {}}, "current") == {}
+    assert S._periodogram({"angle": angle}, "angle") is angle
 
 
 @pytest.mark.parametrize("z, za, zc, expected", [

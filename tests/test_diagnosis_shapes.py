@@ -14,6 +14,7 @@ from etb_gym.components import effects as fx
 from etb_gym.components.effects_maps import table_lookup
 from etb_gym.diagnose import fit as F
 from etb_gym.diagnose import shapes as S
+from etb_gym.diagnose import outside_series as OS
 from etb_gym.diagnose import unmodelled as U
 from etb_gym.diagnose.model import Spec, prepare
 from etb_gym.diagnose.synthetic import make_recording
@@ -134,7 +135,7 @@ def test_refined_airflow_table_beats_the_polynomial_on_a_gaussian_bump():
 def test_detent_torque_is_reported_outside_the_catalogue_with_its_period(tmp_path):
     """A periodic detent torque (not in the library): no catalogue effect is given, the report says
     'outside the catalogue' with id unmodelled_torque and the period, the plant file keeps it as a Fourier
-    series in angle (unmodelled.with_series), the fitted period the one reported."""
+    series in angle (outside_series.with_series), the fitted period the one reported."""
     from etb_gym.diagnose import diagnose
     from etb_gym.diagnose.shapes_eval import Cogging
     P = 16.0
@@ -163,7 +164,7 @@ def test_detent_torque_is_reported_outside_the_catalogue_with_its_period(tmp_pat
 
 
 def test_a_periodic_torque_becomes_a_fourier_series_that_holds_beyond_the_recorded_angles(tmp_path):
-    """unmodelled.scan_period + fit_series on a sawtooth detent with a period unlike the proof's (7.5 deg; the
+    """outside_series.scan_period + fit_series on a sawtooth detent with a period unlike the proof's (7.5 deg; the
     proof's are 10-30 deg) and a phase of its own, started 5 % off: the period is found within 1.5 %, and the
     series' torque follows the truth's over the whole stroke, also at the angles the recording never visited
     (a table falls back to zero there). The component reads back from a plant file; bad fields are named."""
@@ -176,8 +177,8 @@ def test_a_periodic_torque_becomes_a_fourier_series_that_holds_beyond_the_record
     data = prepare([rec], 12.0)
     spec = Spec(make_plant("3B", substeps=20))
     nominal = F.FitResult(spec, np.zeros(len(spec.params)), 1.0, 10, None, 0)
-    P0 = U.scan_period(nominal, data, 1.05 * P, 3, log=lambda *a: None)
-    s = U.fit_series(nominal, data, P0, ("angle",), 3, log=lambda *a: None)
+    P0 = OS.scan_period(nominal, data, 1.05 * P, 3, log=lambda *a: None)
+    s = OS.fit_series(nominal, data, P0, ("angle",), 3, log=lambda *a: None)
     comp = s.component
     assert abs(np.degrees(comp.params.period_rad) - P) < 0.015 * P, np.degrees(comp.params.period_rad)
     phi = np.radians(np.linspace(0.0, 89.9, 900))
@@ -197,7 +198,7 @@ def test_a_periodic_torque_becomes_a_fourier_series_that_holds_beyond_the_record
 
 
 def test_a_series_grown_from_a_smaller_one_starts_from_its_fitted_nominal_parameters(monkeypatch):
-    """unmodelled.fit_series(grown_from=s): more harmonics, a multiple or a fraction of a fitted series' period
+    """outside_series.fit_series(grown_from=s): more harmonics, a multiple or a fraction of a fitted series' period
     start from that series' fitted nominal parameters as well as its coefficients, i.e. at the smaller series'
     optimum. From the calibrated nominal's parameters instead, a few Gauss-Newton steps ended 6 harmonics at
     2.7x the RSS of 3 on a seed-24 detent (a nested model), and the twin kept 3 harmonics: 52x the noise on the
@@ -214,17 +215,17 @@ def test_a_series_grown_from_a_smaller_one_starts_from_its_fitted_nominal_parame
     def fake_fit(pb, data, iters):
         starts.append(np.asarray(pb.x, float).copy())
         raise ValueError("stop after the start")
-    monkeypatch.setattr(U, "fit_penalized", fake_fit)
+    monkeypatch.setattr(OS, "fit_penalized", fake_fit)
     quiet = lambda *a: None  # noqa: E731
-    assert U.fit_series(nominal, data, 9.0, ("angle",), 6, {"cos_Nm_1": 0.01}, quiet, grown_from=grown) is None
-    assert U.fit_series(nominal, data, 9.0, ("angle",), 6, {"cos_Nm_1": 0.01}, quiet) is None
+    assert OS.fit_series(nominal, data, 9.0, ("angle",), 6, {"cos_Nm_1": 0.01}, quiet, grown_from=grown) is None
+    assert OS.fit_series(nominal, data, 9.0, ("angle",), 6, {"cos_Nm_1": 0.01}, quiet) is None
     np.testing.assert_array_equal(starts[0][:n], grown.fit.x[:n])
     np.testing.assert_array_equal(starts[1][:n], nominal.x)
 
 
 @pytest.mark.parametrize("start", [7.5, 15.0])
 def test_a_period_locked_on_the_second_harmonic_is_doubled_and_a_true_period_is_not(start):
-    """unmodelled.subharmonic: narrow detent pulses (a strong 2nd harmonic) of period 15 deg over a short swept
+    """outside_series.subharmonic: narrow detent pulses (a strong 2nd harmonic) of period 15 deg over a short swept
     range (3-36 deg, 2.2 periods, as where a closed loop holds its set points): from the series of the half
     period (the lock of round 15's detent 3B closed s13, 12.2 against 24.9 deg) the doubled period's series
     fits far better for its size and its period comes out within 3 %; from the true period, the doubled
@@ -238,8 +239,8 @@ def test_a_period_locked_on_the_second_harmonic_is_doubled_and_a_true_period_is_
     spec = Spec(make_plant("3B", substeps=20))
     nominal = F.FitResult(spec, np.zeros(len(spec.params)), 1.0, 10, None, 0)
     quiet = lambda *a: None  # noqa: E731
-    s = U.fit_series(nominal, data, start, ("angle",), 3, log=quiet, heldout=False)
-    sub = U.subharmonic(s, nominal, data, log=quiet)
+    s = OS.fit_series(nominal, data, start, ("angle",), 3, log=quiet, heldout=False)
+    sub = OS.subharmonic(s, nominal, data, log=quiet)
     if start < P:
         assert sub is not None and sub.harmonics == 6
         assert abs(math.degrees(sub.component.params.period_rad) - P) < 0.03 * P
@@ -495,29 +496,29 @@ def test_a_table_period_that_disagrees_with_the_residuals_is_flagged():
 
 
 def test_a_series_whose_energy_is_in_every_mth_harmonic_repeats_with_p_over_m():
-    """unmodelled.reductions: a 3-harmonic series of 28.3 deg with its energy in the 2nd harmonic is a 1-harmonic
+    """outside_series.reductions: a 3-harmonic series of 28.3 deg with its energy in the 2nd harmonic is a 1-harmonic
     series of 14.15 deg (round 21: H need not be a multiple of m); a 6-harmonic one in harmonics 3 and 6 repeats
     with P / 3 (2 harmonics); energy in the 1st harmonic, or one part off the multiples, gives none, unless that
     part holds less than REDUCE_SHARE of the torque energy (the part per ampere weighed by the model's RMS current)."""
     c = {"cos_Nm_per_A_1": -4.4e-5, "cos_Nm_per_A_2": -4.04e-3, "cos_Nm_per_A_3": 2.0e-4,
          "sin_Nm_per_A_1": -2.7e-4, "sin_Nm_per_A_2": 8.22e-3, "sin_Nm_per_A_3": 3.8e-4}
-    assert U.reductions(c, 3, 28.3, ("current",)) == [(2, 1, {"cos_Nm_per_A_1": -4.04e-3, "sin_Nm_per_A_1": 8.22e-3})]
+    assert OS.reductions(c, 3, 28.3, ("current",)) == [(2, 1, {"cos_Nm_per_A_1": -4.04e-3, "sin_Nm_per_A_1": 8.22e-3})]
     c6 = {f"cos_Nm_{h}": (0.01 if h % 3 == 0 else 0.0) for h in range(1, 7)}
     c6.update({f"sin_Nm_{h}": 0.0 for h in range(1, 7)})
-    (m, H, start), = U.reductions(c6, 6, 56.1, ("angle",))
+    (m, H, start), = OS.reductions(c6, 6, 56.1, ("angle",))
     assert (m, H) == (3, 2) and start["cos_Nm_1"] == start["cos_Nm_2"] == 0.01
-    assert U.reductions({"cos_Nm_1": 0.01, "cos_Nm_2": 0.001, "cos_Nm_3": 0.0}, 3, 28.3, ("angle",)) == []
+    assert OS.reductions({"cos_Nm_1": 0.01, "cos_Nm_2": 0.001, "cos_Nm_3": 0.0}, 3, 28.3, ("angle",)) == []
     both = {**c, "cos_Nm_1": 0.01, "cos_Nm_2": 0.0, "cos_Nm_3": 0.0}
-    assert U.reductions(both, 3, 28.3, ("angle", "current")) == []
+    assert OS.reductions(both, 3, 28.3, ("angle", "current")) == []
     # a part too small to hold the period does not veto it (seed-26 current ripple, 3B open: 0.0071 N m/A in the
     # current part's 2nd harmonic, 0.00058 N m in the angle part's 1st and 3rd), at the model's RMS current of 1 A;
     # at 0.05 A the current part is the small one and the angle part's period stands
     small = {**c, "cos_Nm_1": -5.5e-4, "sin_Nm_1": -3.3e-5, "cos_Nm_2": 1.5e-5, "sin_Nm_2": 1.1e-4,
              "cos_Nm_3": 1.9e-4, "sin_Nm_3": 3.3e-5}
-    (m, H, start), = U.reductions(small, 3, 34.6, ("angle", "current"), current_rms_A=1.0)
+    (m, H, start), = OS.reductions(small, 3, 34.6, ("angle", "current"), current_rms_A=1.0)
     assert (m, H) == (2, 1) and start["cos_Nm_per_A_1"] == -4.04e-3 and start["cos_Nm_1"] == 1.5e-5
-    assert U.reductions(small, 3, 34.6, ("angle", "current"), current_rms_A=0.05) == []
-    assert U.reductions(c, 3, 10.0, ("current",)) == []          # P / 2 below the shortest period tried
+    assert OS.reductions(small, 3, 34.6, ("angle", "current"), current_rms_A=0.05) == []
+    assert OS.reductions(c, 3, 10.0, ("current",)) == []          # P / 2 below the shortest period tried
 
 
 @pytest.mark.parametrize("top, first, count", [(100.0, 100.0 / 3e3, 8), (4.67, 0.01, 6), (1.0, 1.0 / 300.0, 6)])
@@ -533,7 +534,7 @@ def test_the_stribeck_speed_table_reaches_low_speeds_at_the_same_spacing(monkeyp
 
 
 def test_a_reduced_series_grows_its_harmonics_back_at_its_own_period(monkeypatch):
-    """unmodelled.regrown: a series reduced to P / m keeps H // m harmonics (a 3-harmonic series of a doubled
+    """outside_series.regrown: a series reduced to P / m keeps H // m harmonics (a 3-harmonic series of a doubled
     period: 1); it is grown to SERIES_HARMONICS at its own period, the period held, each growth kept when it
     lowers the held-out error (period held) by SERIES_MIN_GAIN (detent_torque 3B open s26: a 12.3 deg sawtooth
     ended as a sine, twin 4.2x the noise)."""
@@ -546,20 +547,20 @@ def test_a_reduced_series_grows_its_harmonics_back_at_its_own_period(monkeypatch
         calls.append((round(P, 6), H, period_free, heldout, grown_from.harmonics))
         return SimpleNamespace(harmonics=H, heldout=math.inf, parts=parts, component=grown_from.component)
     scores = {3: 50.0, 6: 49.0}                      # 6 harmonics: less than SERIES_MIN_GAIN better, not kept
-    monkeypatch.setattr(U, "fit_series", fake_fit)
-    monkeypatch.setattr(U, "_coefficients", lambda s: {})
-    monkeypatch.setattr(U, "heldout_period_held", lambda s, data: scores[s.harmonics])
+    monkeypatch.setattr(OS, "fit_series", fake_fit)
+    monkeypatch.setattr(OS, "_coefficients", lambda s: {})
+    monkeypatch.setattr(OS, "heldout_period_held", lambda s, data: scores[s.harmonics])
     quiet = lambda *a: None  # noqa: E731
-    s = U.regrown(one, None, None, quiet)
+    s = OS.regrown(one, None, None, quiet)
     assert s.harmonics == 3 and s.heldout == 50.0
     assert calls == [(12.3, 3, False, False, 1), (12.3, 6, False, False, 3)]
     scores.update({3: 99.0, 6: 96.0})                # no gain: the reduced series stays
     calls.clear()
-    assert U.regrown(one, None, None, quiet) is one and calls == [(12.3, 3, False, False, 1), (12.3, 6, False, False, 1)]
+    assert OS.regrown(one, None, None, quiet) is one and calls == [(12.3, 3, False, False, 1), (12.3, 6, False, False, 1)]
 
 
 def test_a_series_is_described_at_its_own_shortest_period():
-    """unmodelled.repeats_every / Series.describe: a series of P whose energy lies in every m-th harmonic is the
+    """outside_series.repeats_every / Series.describe: a series of P whose energy lies in every m-th harmonic is the
     series of P / m, the period reported (current_ripple 3B open s28: a 6-harmonic series of 45.11 deg, 99.9 % of
     its energy in harmonic 3 of a 14.94 deg ripple, was reported at 45.1 deg); the exported series is unchanged."""
     from types import SimpleNamespace
@@ -570,8 +571,8 @@ def test_a_series_is_described_at_its_own_shortest_period():
     z = (0.0,) * 6
     q = PeriodicAngleTorque.Params(period_rad=math.radians(45.11), cos_Nm=z, sin_Nm=z, cos_Nm_per_A=cos_a,
                                    sin_Nm_per_A=sin_a)
-    assert U.repeats_every(q, ("current",)) == 3
-    class Fixed(U.Series):                           # the fitted series' coefficients without a fit
+    assert OS.repeats_every(q, ("current",)) == 3
+    class Fixed(OS.Series):                           # the fitted series' coefficients without a fit
         component = property(lambda self: SimpleNamespace(params=q))
     d = Fixed(None, ("current",), 6, 8.8).describe()
     assert d["period_deg"] == pytest.approx(45.11 / 3) and d["series_period_deg"] == pytest.approx(45.11)
@@ -580,11 +581,11 @@ def test_a_series_is_described_at_its_own_shortest_period():
     saw = tuple((-1.0) ** (h + 1) / h * 1e-3 for h in range(1, 7))      # a sawtooth: every harmonic
     q2 = PeriodicAngleTorque.Params(period_rad=math.radians(18.6), cos_Nm=z, sin_Nm=saw, cos_Nm_per_A=z,
                                     sin_Nm_per_A=z)
-    assert U.repeats_every(q2, ("angle",)) == 1
+    assert OS.repeats_every(q2, ("angle",)) == 1
     six = tuple(1e-3 if h == 6 else 0.0 for h in range(1, 7))           # only harmonic 6: P / 6 (>= 6 deg)
     q3 = PeriodicAngleTorque.Params(period_rad=math.radians(60.0), cos_Nm=six, sin_Nm=z, cos_Nm_per_A=z,
                                     sin_Nm_per_A=z)
-    assert U.repeats_every(q3, ("angle",)) == 6
+    assert OS.repeats_every(q3, ("angle",)) == 6
     q4 = PeriodicAngleTorque.Params(period_rad=math.radians(30.0), cos_Nm=six, sin_Nm=z, cos_Nm_per_A=z,
                                     sin_Nm_per_A=z)
-    assert U.repeats_every(q4, ("angle",)) == 3         # 30 / 6 = 5 deg is below PERIODS_DEG: 30 / 3
+    assert OS.repeats_every(q4, ("angle",)) == 3         # 30 / 6 = 5 deg is below PERIODS_DEG: 30 / 3

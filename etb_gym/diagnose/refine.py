@@ -112,8 +112,8 @@ class Outcome:
             if t == "sensor":                  # a sensor-side map (sensor_map.py)
                 from .sensor_map import plot as plot_sensor
                 plot_sensor(fig.add_subplot(len(panels), 1, k + 1), tab, title)
-            elif t is None:                    # a Fourier series (unmodelled.with_series)
-                from .unmodelled import plot_series
+            elif t is None:                    # a Fourier series (outside_series.with_series)
+                from .outside_series import plot_series
                 plot_series(fig.add_subplot(len(panels), 1, k + 1), tab, title)
             else:
                 plot_table(fig.add_subplot(len(panels), 1, k + 1), t, tab, title)
@@ -229,6 +229,7 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     the screening's leader that the selection did not accept (explain.select); in a closed loop it is tried as an
     alternative too. ``library``: the candidates the user allowed (None: all); only they are tried as alternatives.
     Returns (final fit, steps, Outcome)."""
+    from . import outside_series as S
     from . import unmodelled as U
     res = Outcome()
     cur = final
@@ -292,20 +293,20 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
         if gc.heldout < (1.0 - MIN_GAIN) * g.heldout and U.periodic_term(gc.shape) is not None:
             log(f"  the periodic torque scales with the current: held-out {gc.heldout:.3g} against {g.heldout:.3g}")
             g = gc
-        g0, g = g, U.with_series(g, nominal, data, log=log)     # the periodic torque as a Fourier series in angle
+        g0, g = g, S.with_series(g, nominal, data, log=log)     # the periodic torque as a Fourier series in angle
         Q, why = U.harmonic_period(g0.shape, ps), "is a multiple of"
         if Q is None:               # ... or the two estimates of the period disagree
             Q, why = U.disagreeing_period(g0.shape, ps), "disagrees with"
         if Q is not None:           # the tables' period is a multiple of the residual's: the series of each
             log(f"  the tables' period {why} the residual's ({Q:.2f} deg): its series is tried too")
-            gq = U.with_series(U.with_period(g0, Q), nominal, data, log=log)
+            gq = S.with_series(U.with_period(g0, Q), nominal, data, log=log)
             if gq.series is not None and gq.heldout < g.heldout:
                 log(f"  the series of {Q:.2f} deg predicts the held-out folds better ({gq.heldout:.3g} against "
                     f"{g.heldout:.3g}): kept")
                 g = gq
     if ps is not None and U.periodic_term(g.shape) is None:
         # the tables show no period, the residual does: a series of the residual's period
-        g = U.with_series(g, nominal, data, log=log, hint=ps)
+        g = S.with_series(g, nominal, data, log=log, hint=ps)
     res.generic = g
     rms_nom = U._rms_deg(nominal.spec, nominal.x, data)
     if U.compare(g, h_cat, rms_nom, data) or _accounts(persistent, cur, g.fit, log) \
