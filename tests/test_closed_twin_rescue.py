@@ -6,7 +6,6 @@ import types
 import numpy as np
 
 from etb_gym.diagnose import closed_twin as CT
-from etb_gym.diagnose import fit as F
 
 N = 6000
 
@@ -19,9 +18,9 @@ def _case(monkeypatch, replay=(11387.0, 5546.0), observer=(5866.0, 5757.0), held
                                 term=types.SimpleNamespace(id="torque_constant_error_torque_offset"))
     data = types.SimpleNamespace(recs=[types.SimpleNamespace(residual=residual)], continuity=True)
     costs = {"formula": (replay[0], observer[0]), "table": (replay[1], observer[1])}
-    monkeypatch.setattr(CT, "replay_view", lambda d: d)
-    monkeypatch.setattr(CT, "_replay_cost", lambda fr, rv: (costs[fr.spec][0], N))
-    monkeypatch.setattr(F, "evaluate", lambda spec, d, x: np.full(N, np.sqrt(costs[spec][1] / N)))
+    replay = types.SimpleNamespace(continuity=True)             # the replay view; ``data`` is the observer's
+    monkeypatch.setattr(CT, "replay_view", lambda d: replay)
+    monkeypatch.setattr(CT, "_replay_cost", lambda fr, rv: (costs[fr.spec][0 if rv is replay else 1], N))
     return cur, ref, data
 
 

@@ -218,11 +218,8 @@ def voltage_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_
     59.3, the supply drop's at 28.8 (docs/diagnosis.md, "Voltage side or torque side")."""
     if leader in VOLTAGE_SIDE:
         return torque_side(ref, screened, leader, data, bic_min, log)
-    fits = {c: fr for _, c, fr in screened}
     volts = [c for d, c, _ in screened if c in VOLTAGE_SIDE and d < -bic_min]
-    if leader not in fits or not volts:
-        return None
-    got = _current_shares(ref, fits, leader, volts, data)
+    got = _current_shares(ref, screened, leader, volts, data)
     if got is None:
         return None
     ms, share = got
@@ -234,11 +231,15 @@ def voltage_side(ref: F.FitResult, screened: list, leader: str, data: Data, bic_
                           "named", log)
 
 
-def _current_shares(ref: F.FitResult, fits: dict, leader: str, rivals: list, data: Data):
+def _current_shares(ref: F.FitResult, screened: list, leader: str, rivals: list, data: Data):
     """(ms, share) for :func:`voltage_side` / :func:`reading_or_motion`: the current residuals (mean square, noise
-    units) of the current model ``ref``, the leader's and each rival's screening fit, and share(c), the part of the
-    current model's current residual that c's fit accounts for (-inf where c's cannot be computed); None when the
-    current model's current residual is not above the noise (CURRENT_MS_MIN) or no recording carries a current."""
+    units) of the current model ``ref``, the leader's and each rival's screening fit (``screened``: (dbic, id,
+    FitResult), ...), and share(c), the part of the current model's current residual that c's fit accounts for
+    (-inf where c's cannot be computed); None when there is no rival, the leader was not screened, the current
+    model's current residual is not above the noise (CURRENT_MS_MIN) or no recording carries a current."""
+    fits = {c: fr for _, c, fr in screened}
+    if leader not in fits or not rivals:
+        return None
     m0 = current_ms(ref, data)
     if m0 is None or not m0 >= CURRENT_MS_MIN:
         return None
@@ -318,12 +319,9 @@ def reading_or_motion(ref: F.FitResult, screened: list, leader: str, data: Data,
     model's 37.9 (docs/diagnosis-history.md, round 27 t27bow)."""
     if leader not in CANDIDATES or not CANDIDATES[leader].sensor:
         return None
-    fits = {c: fr for _, c, fr in screened}
     motion = [c for d, c, _ in screened if c in CANDIDATES and not CANDIDATES[c].sensor and c not in VOLTAGE_SIDE
               and d < -bic_min]
-    if leader not in fits or not motion:
-        return None
-    got = _current_shares(ref, fits, leader, motion, data)
+    got = _current_shares(ref, screened, leader, motion, data)
     if got is None:
         return None
     ms, share = got
