@@ -230,3 +230,24 @@ def test_an_outside_description_must_remove_most_of_what_the_catalogue_model_lea
     assert R.removes_leftover(1.05, 0.9, 1.0) is None          # the catalogue model within the noise: not measurable
     assert R.removes_leftover(float("inf"), 0.9, 1.0) is None
     assert R.removes_leftover(2.0, 2.5, 1.0) < 0                # worse than the catalogue model
+
+
+def test_a_period_spanning_few_cycles_of_the_visited_angles_is_established_only_by_the_residuals_own():
+    # airflow_torque@1 random closed s37: a 38.4 deg Fourier series over 6-65 deg (1.5 cycles), the residual's
+    # structure 14.8 deg: the series tied with the airflow formula on the folds (1.01 against 1.07) and displaced it
+    from types import SimpleNamespace as NS
+    angle = np.linspace(6.4, 65.0, 500)
+    data = NS(recs=[NS(rec=NS(angle_deg=angle))])
+    g = NS(shape={"significant_terms": ["unmodelled_angle"], "angle": {"periodic": True, "period_deg": 38.4}})
+    ps = {"significant": True, "z": 8.6, "period_deg": 14.8}
+    assert U.visited_span_deg(data) == pytest.approx(58.6)
+    assert not U.period_established(g, ps, data)
+    assert not U.period_established(g, None, data)
+    assert U.period_established(g, {**ps, "period_deg": 38.0}, data)          # the residual's own period
+    assert U.period_established(g, {**ps, "period_deg": 19.3}, data)          # ... or a multiple of it
+    assert not U.period_established(g, {**ps, "period_deg": 38.0, "significant": False}, data)
+    short = NS(shape={**g.shape, "angle": {"periodic": True, "period_deg": 20.0}})
+    assert U.period_established(short, None, data)                            # 2.9 cycles
+    gen = NS(importance={"unmodelled_angle": 1.0}, rms_deg=0.5, heldout=1.01, shape=g.shape)
+    assert not U.compare(gen, 1.07, 1.0, data, ps)                          # a tie, the period not established
+    assert U.compare(NS(**{**vars(gen), "shape": short.shape}), 1.07, 1.0, data, ps)

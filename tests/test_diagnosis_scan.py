@@ -82,13 +82,30 @@ def test_profiled_scan_finds_a_parameter_whose_first_order_effect_the_fitted_one
 def test_observer_recordings_are_cross_validated_on_short_blocks_replays_on_long_ones():
     from types import SimpleNamespace as NS
     t = np.arange(0.0, 2.0, 0.001)
-    data = NS(recs=[NS(rec=NS(t_s=t), residual="observer"), NS(rec=NS(t_s=t), residual="replay")])
+    phi = 40.0 + 40.0 * np.sin(2 * np.pi * 1.3 * t)          # every block sweeps the stroke
+    data = NS(recs=[NS(rec=NS(t_s=t, angle_deg=phi), residual="observer"),
+                    NS(rec=NS(t_s=t, angle_deg=phi), residual="replay")])
     A, B = F.fold_masks(data)
     for a, b, block in zip(A, B, (F.FOLD_BLOCK_OBSERVER_S, F.FOLD_BLOCK_S)):
         assert not np.any(a & b) and np.all(a | b)
         switches = np.flatnonzero(np.diff(a.astype(int))) + 1
         assert np.allclose(np.diff(t[switches]), block, atol=2e-3), block
     assert F.FOLD_BLOCK_OBSERVER_S < F.FOLD_BLOCK_S
+
+
+def test_a_replay_whose_folds_would_not_see_the_plate_move_over_the_same_angles_gets_shorter_blocks():
+    from types import SimpleNamespace as NS
+    t = np.arange(0.0, 6.0, 0.001)
+    u = (t % F.FOLD_BLOCK_S) / F.FOLD_BLOCK_S                     # one triangle per 0.5 s block
+    odd = (np.floor(t / F.FOLD_BLOCK_S).astype(int) % 2) == 1
+    phi = np.where(odd, 80.0, 20.0) * (1.0 - np.abs(2.0 * u - 1.0))  # odd blocks sweep 0-80 deg, even ones 0-20
+    rd = NS(rec=NS(t_s=t, angle_deg=phi), residual="replay")
+    assert F.fold_cover(rd, F.FOLD_BLOCK_S) < F.FOLD_COVER_MIN
+    b = F.fold_block_s(rd)
+    assert b in F.FOLD_BLOCKS_SHORT_S and F.fold_cover(rd, b) > 2 * F.fold_cover(rd, F.FOLD_BLOCK_S)
+    assert F.fold_block_s(rd, 1.0) == 1.0                            # a block length asked for is kept
+    still = NS(rec=NS(t_s=t, angle_deg=np.full(t.size, 5.0)), residual="replay")
+    assert F.fold_cover(still, F.FOLD_BLOCK_S) == 1.0 and F.fold_block_s(still) == F.FOLD_BLOCK_S
 
 
 def _two_basins(a=(1.0, 0.0), b=(4.0, 6.0)):

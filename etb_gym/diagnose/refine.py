@@ -309,7 +309,7 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
         g = S.with_series(g, nominal, data, log=log, hint=ps)
     res.generic = g
     rms_nom = U._rms_deg(nominal.spec, nominal.x, data)
-    if U.compare(g, h_cat, rms_nom, data) or _accounts(persistent, cur, g.fit, log) \
+    if U.compare(g, h_cat, rms_nom, data, ps if ps and ps["significant"] else None) or _accounts(persistent, cur, g.fit, log) \
             or _period_decides(g, h_cat, ps if ps and ps["significant"] else None, rms_nom, data, log):
         if steps:
             rc = U._rms_deg(cur.spec, cur.x, data)
