@@ -1,7 +1,8 @@
 """Candidate friction effects (diagnosis library, docs/diagnosis.md): extra friction with its own bristle.
 
     stribeck_friction         extra stiction dT_s that vanishes with speed (the Stribeck drop):
-                              g(omega) = dT_s exp(-sqrt(|omega/omega_s|))  (friction.stribeck_curve with T_c = 0)
+                              g(omega) = dT_s exp(-|omega/omega_s|^delta)  (friction.stribeck_curve with T_c = 0;
+                              the exponent delta defaults to 0.5, exp(-sqrt), the form before it was a field)
                               dz/dt = omega - sigma0 |omega| z / g,   T = -sigma0 z
     angle_dependent_friction  Coulomb friction that varies along the stroke, x = phi / (pi/2):
                               dT(x) = a1 (x - 1/2) + a2 ((x - 1/2)^2 - 1/12)   (zero mean over the stroke:
@@ -31,17 +32,18 @@ class StribeckFrictionParams(Params):
     stiction_Nm: float = 0.0                    # dT_s: breakaway torque beyond the nominal friction
     stribeck_velocity_rad_s: float = 0.05       # omega_s of the extra stiction
     bristle_stiffness_Nm_per_rad: float = 100.0  # sigma0 of the extra bristle
+    exponent: float = 0.5                       # delta: the drop's shape (0.5 exp(-sqrt), 1 exponential, 2 Gaussian)
 
     def validate(self):
         n = "StribeckFrictionParams"
         non_negative(n, self, "stiction_Nm")
-        positive(n, self, "stribeck_velocity_rad_s", "bristle_stiffness_Nm_per_rad")
+        positive(n, self, "stribeck_velocity_rad_s", "bristle_stiffness_Nm_per_rad", "exponent")
 
 
 @kernel
 def stribeck_level(omega, p):
     """g(omega) of the extra stiction (kept above G_MIN_NM so the bristle equation stays regular)."""
-    g = stribeck_curve(omega, 0.0, p[0], p[1])
+    g = stribeck_curve(omega, 0.0, p[0], p[1], p[3])
     if g < G_MIN_NM:
         g = G_MIN_NM
     return g

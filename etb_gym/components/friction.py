@@ -130,15 +130,24 @@ class LuGreFrictionParams(Params):
 
 
 @kernel
-def stribeck_curve(omega, Tc, Ts, ws):
-    """g(omega) of eq. 28."""
-    return Tc + (Ts - Tc) * math.exp(-math.sqrt(abs(omega / ws)))
+def stribeck_curve(omega, Tc, Ts, ws, delta):
+    """g(omega) = T_c + (T_s - T_c) exp(-|omega / omega_s|^delta): eq. 28 with the Stribeck exponent delta (the
+    paper's square root is delta = 0.5; the literature's exponential 1 and Gaussian 2, Armstrong-Helouvry 1994,
+    Olsson et al. 1998). delta = 0.5 and 1 take sqrt and abs, so a plant without an exponent keeps its bits."""
+    x = abs(omega / ws)
+    if delta == 0.5:
+        y = math.sqrt(x)
+    elif delta == 1.0:
+        y = x
+    else:
+        y = x ** delta
+    return Tc + (Ts - Tc) * math.exp(-y)
 
 
 @kernel
 def lugre_stribeck(phi, omega, i, p):
     """The carried value of LuGre (components/base.py): g(omega), which the kernel and the advance share."""
-    return stribeck_curve(omega, p[0], p[1], p[2])
+    return stribeck_curve(omega, p[0], p[1], p[2], 0.5)
 
 
 @kernel

@@ -198,7 +198,11 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
               off=(("quadratic_Nm", 0.0), ("cubic_Nm", 0.0))),
     Candidate("stribeck_friction", "friction", fx.StribeckFriction.description,
               (P("stiction_Nm", 0.01, 0.0, 0.4, 0.02, "N m", ref="friction_Nm"),
-               P("stribeck_velocity_rad_s", 0.05, 0.002, 3.0, 0.05, "rad/s")), fx.StribeckFriction,
+               P("stribeck_velocity_rad_s", 0.05, 0.002, 3.0, 0.05, "rad/s"),
+               # the drop's shape, exp(-|w/w_s|^delta): the literature's 0.5-2 (square root, exponential, Gaussian);
+               # starts at the exponential, whose slope at zero speed is finite (exp(-sqrt) is infinitely steep there,
+               # and a drop flat at rest made the fit miss its own training 5-22x, docs/diagnosis-history.md round 28)
+               P("exponent", 1.0, 0.5, 2.0, 0.25, "1")), fx.StribeckFriction,
               # a rig's Stribeck velocity spans decades (0.02-1 rad/s); from 0.05 alone the fit of a rational drop
               # stayed at stiction 0.144 N m (truth 0.080), RSS 2x the best start's (docs/diagnosis-history.md round 21)
               off=(("stiction_Nm", 0.0),), starts=(0.2, 1.0)),
