@@ -112,8 +112,8 @@ def backlash_kernel(t, phi, omega, i, u, s, p, ds):
 def backlash_edges(phi0, omega0, phi1, omega1, p):
     """Where the torque jumps (integrate.py "Contacts"): the shifted spring damps (c_LH*omega) while
     -r b - eps < phi - phi_LH < b + eps (the play and its contact band), the subtracted spring at phi_LH +- eps."""
-    a = crossing(phi0, phi1, p[1] - p[6] * p[0] - p[4])
-    b = crossing(phi0, phi1, p[1] + p[0] + p[4])
+    a = crossing(phi0, phi1, p[1] - (p[6] * p[0] + p[4]))     # grouped as before r: r = 1 steps bit for bit
+    b = crossing(phi0, phi1, p[1] + (p[0] + p[4]))
     c = limp_home_spring_edges(phi0, omega0, phi1, omega1, p[1:6])
     if b < a:
         a = b
