@@ -6,8 +6,9 @@ parameters (the diagnosis keeps them equal when it refits the nominal parameters
 
     spring_asymmetry     below limp-home (d = phi - phi_LH < 0) the closing spring has preload
                          T_SP0 + dT_SP0 and rate R_F + dR_F:  T += spring_kernel(phi; dT_SP0, dR_F) for d < 0
-    backlash             free play +-b between the spring arms around limp-home: the springs act as if
-                         at d' = d - b*sign(d) (|d| > b), not at all within the play:
+    backlash             free play between the spring arms around limp-home, b above it and r*b below it
+                         (r = 1: symmetric; the lever need not rest in the play's middle): the springs act as
+                         if at d' = d - b (d > b) or d + r b (d < -r b), not at all within the play:
                          T += spring_kernel(phi_LH + d') - spring_kernel(phi)
     end_stop_compliance  stops at other angles / stiffness: T += stops_kernel(new) - stops_kernel(nominal)
     airflow_torque       T = c2 x^2 + c3 x^3,  x = phi / (pi/2)  (aerodynamic torque of the air flow)
@@ -74,29 +75,32 @@ class SpringAsymmetry(Effect):
 # ------------------------------------------------------------------------------------ backlash
 @dataclasses.dataclass(frozen=True)
 class BacklashParams(Params):
-    play_rad: float = 0.0                            # b: half-width of the free play
+    play_rad: float = 0.0                            # b: the free play above limp-home (opening)
     limp_home_rad: float = math.radians(3.0)         # tied to the plant's spring
     preload_Nm: float = 0.15
     rate_Nm_per_rad: float = 0.36
     limp_home_compliance_rad: float = 3e-3
     limp_home_damping_Nm_s_per_rad: float = 0.039
+    closing_ratio: float = 1.0                       # r: the play below limp-home (closing) is r*b
 
     def validate(self):
         n = "BacklashParams"
-        non_negative(n, self, "play_rad", "preload_Nm", "rate_Nm_per_rad", "limp_home_damping_Nm_s_per_rad")
+        non_negative(n, self, "play_rad", "preload_Nm", "rate_Nm_per_rad", "limp_home_damping_Nm_s_per_rad",
+                     "closing_ratio")
         positive(n, self, "limp_home_compliance_rad")
 
 
 @kernel
 def backlash_kernel(t, phi, omega, i, u, s, p, ds):
-    # p = [b, phi_LH, T_SP0, R_F, eps, c_LH]; the last five are the spring's own vector
+    # p = [b, phi_LH, T_SP0, R_F, eps, c_LH, r]; p[1:6] is the spring's own vector
     q = p[1:6]
     d = phi - p[1]
     b = p[0]
+    bc = p[6] * b
     if d > b:
         shifted = phi - b
-    elif d < -b:
-        shifted = phi + b
+    elif d < -bc:
+        shifted = phi + bc
     else:
         shifted = p[1]
     t1, e1, l1 = limp_home_spring_kernel(t, shifted, omega, i, u, s, q, ds)
@@ -107,10 +111,9 @@ def backlash_kernel(t, phi, omega, i, u, s, p, ds):
 @kernel
 def backlash_edges(phi0, omega0, phi1, omega1, p):
     """Where the torque jumps (integrate.py "Contacts"): the shifted spring damps (c_LH*omega) while
-    |phi - phi_LH| < b + eps (the play and its contact band), the subtracted spring at phi_LH +- eps."""
-    w = p[0] + p[4]
-    a = crossing(phi0, phi1, p[1] - w)
-    b = crossing(phi0, phi1, p[1] + w)
+    -r b - eps < phi - phi_LH < b + eps (the play and its contact band), the subtracted spring at phi_LH +- eps."""
+    a = crossing(phi0, phi1, p[1] - (p[6] * p[0] + p[4]))     # grouped as before r: r = 1 steps bit for bit
+    b = crossing(phi0, phi1, p[1] + (p[0] + p[4]))
     c = limp_home_spring_edges(phi0, omega0, phi1, omega1, p[1:6])
     if b < a:
         a = b

@@ -175,13 +175,17 @@ CANDIDATES: dict[str, Candidate] = {c.id: c for c in (
                     ("limp_home_compliance_rad", "spring.limp_home_compliance_rad")),
               off=(("closing_preload_delta_Nm", 0.0), ("closing_rate_delta_Nm_per_rad", 0.0))),
     Candidate("backlash", "mechanical", fx.Backlash.description,
-              (P("play_rad", 0.004, 0.0, 0.06, 0.003, "rad"),), fx.Backlash,
+              (P("play_rad", 0.004, 0.0, 0.06, 0.003, "rad"), P("closing_ratio", 1.0, 0.0, 4.0, 0.25, "1")),
+              fx.Backlash,
               ties=(("limp_home_rad", "spring.limp_home_rad"), ("preload_Nm", "spring.preload_Nm"),
                     ("rate_Nm_per_rad", "spring.rate_Nm_per_rad"),
                     ("limp_home_compliance_rad", "spring.limp_home_compliance_rad"),
                     ("limp_home_damping_Nm_s_per_rad", "spring.limp_home_damping_Nm_s_per_rad")),
               # outside the play the springs act at d - b sign d: exactly a preload lowered by R_F b
-              profiled=True, off=(("play_rad", 0.0),)),
+              # the closing side's play as a share r of the opening side's (a lever resting off the play's middle):
+              # it starts at 1 (symmetric), so the screening and the scan see the symmetric play, and a recording
+              # that never passes below limp-home leaves it there (no gradient): the unseen side mirrors the seen one
+              profiled=True, off=(("play_rad", 0.0), ("closing_ratio", 1.0))),
     Candidate("end_stop_compliance", "mechanical", fx.EndStopCompliance.description,
               (P("open_rad", R(90.0), R(84.0), R(96.0), R(0.5), "rad", ref="open_stop_rad"),
                P("closed_rad", 0.0, R(-3.0), R(3.0), R(0.2), "rad", ref="closed_stop_rad"),

@@ -345,13 +345,14 @@ def reading_or_motion(ref: F.FitResult, screened: list, leader: str, data: Data,
 # tied plant fields included) and the plate angle [rad]:
 #   end_stop_compliance  in contact with a stop: phi beyond the nearer of the fitted and the nominal stop angle
 #   spring_asymmetry     below limp-home (its kernel acts there only)
-#   backlash             within the play and its contact band, |phi - phi_LH| <= b + eps: outside it the play
+#   backlash             within the play and its contact band, -r b - eps <= phi - phi_LH <= b + eps: outside it the play
 #                        acts as a lower preload (-R_F b sign d), which the calibrated preload takes up
 REGION = {
     "end_stop_compliance": lambda q, phi: ((phi <= max(q.closed_rad, q.nominal_closed_rad))
                                            | (phi >= min(q.open_rad, q.nominal_open_rad))),
     "spring_asymmetry": lambda q, phi: phi < q.limp_home_rad,
-    "backlash": lambda q, phi: np.abs(phi - q.limp_home_rad) <= q.play_rad + q.limp_home_compliance_rad,
+    "backlash": lambda q, phi: ((phi - q.limp_home_rad <= q.play_rad + q.limp_home_compliance_rad)
+                                & (q.limp_home_rad - phi <= q.closing_ratio * q.play_rad + q.limp_home_compliance_rad)),
 }
 REGION_SHARE = 0.5    # the local family's gain lies at least this much inside its region (it explains where it acts)
 PART_GAP_RAD = math.radians(10.0)   # parts of a region: its samples' angles split where they are this far apart
