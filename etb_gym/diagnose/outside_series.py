@@ -455,6 +455,50 @@ POLISH_ITER = 30          # Levenberg-Marquardt iterations at most of the kept s
 POLISH_DAMPING = (0.1, 1e-4, 4.0)   # the polish's damping: start, floor, factor (up on a failed step, down after one)
 POLISH_TRIES = 8          # damped steps tried per Jacobian before a finer finite-difference step (then stop)
 POLISH_FD_FINER = (5.0, 25.0)   # the finer steps tried in turn: shapes.FD_STEP / these
+POLISH_STOP = 0.005       # the polish stops after an iteration that lowers the objective by less than this share
+
+
+def levenberg(pb: Problem, residual, jacobian):
+    """Levenberg-Marquardt on ``pb`` (shapes.Problem: x, free parameters, its prior) from pb.x, as
+    :func:`polish` describes: ``residual(x)`` -> residual vector, ``jacobian(pb, r, fd_step)`` -> Jacobian over
+    pb.free. Returns (pb at the last accepted x, its residual, the last Jacobian or None, accepted iterations,
+    objective at the start, objective at the end)."""
+    from . import shapes as SH
+    pb = dataclasses.replace(pb, x=SH._clip(pb, pb.x.copy()))
+    r = residual(pb.x)
+    obj_start = obj = SH._objective(pb, r, pb.x[pb.free], [])
+    lam, floor, factor = POLISH_DAMPING
+    steps, J, it = [SH.FD_STEP] + [SH.FD_STEP / f for f in POLISH_FD_FINER], None, 0
+    fd = steps.pop(0)
+    while it < POLISH_ITER:
+        J = jacobian(pb, r, fd)
+        A, g, _ = SH._gram(J, r)
+        theta = pb.x[pb.free]
+        step = None
+        for _ in range(POLISH_TRIES):
+            d = SH._solve_gram(A, g, pb, [], damping=lam)
+            xn = pb.x.copy()
+            xn[pb.free] = theta + d
+            xn = SH._clip(pb, xn)
+            rn = residual(xn)
+            objn = SH._objective(pb, rn, xn[pb.free], [])
+            if objn < obj:
+                step = (xn, rn, objn)
+                break
+            lam *= factor
+        if step is None:
+            if not steps:
+                break
+            fd, lam = steps.pop(0), POLISH_DAMPING[0]
+            continue
+        it += 1
+        gain = (obj - step[2]) / max(obj, 1e-300)
+        pb = dataclasses.replace(pb, x=step[0])
+        r, obj = step[1], step[2]
+        lam = max(lam / factor, floor)
+        if gain < POLISH_STOP:
+            break
+    return pb, r, J, it, obj_start, obj
 
 
 def polish(s: Series, data: Data, log=print) -> Series:
@@ -482,40 +526,8 @@ def polish(s: Series, data: Data, log=print) -> Series:
     x0 = np.concatenate([np.asarray(s.fit.x, float)[:n_nom], np.zeros(len(spec.params) - n_nom)])
     try:
         pb = Problem.make(spec, x0, ("nominal", SERIES_ID))
-        pb = dataclasses.replace(pb, x=SH._clip(pb, pb.x.copy()))
-        r = SH._residual(spec, data, pb.x)
-        obj_start = obj = SH._objective(pb, r, pb.x[pb.free], [])
-        lam, floor, factor = POLISH_DAMPING
-        steps, J, it = [SH.FD_STEP] + [SH.FD_STEP / f for f in POLISH_FD_FINER], None, 0
-        fd = steps.pop(0)
-        while it < POLISH_ITER:
-            J = SH.jacobian(pb, data, r, fd)
-            A, g, _ = SH._gram(J, r)
-            theta = pb.x[pb.free]
-            step = None
-            for _ in range(POLISH_TRIES):
-                d = SH._solve_gram(A, g, pb, [], damping=lam)
-                xn = pb.x.copy()
-                xn[pb.free] = theta + d
-                xn = SH._clip(pb, xn)
-                rn = SH._residual(spec, data, xn)
-                objn = SH._objective(pb, rn, xn[pb.free], [])
-                if objn < obj:
-                    step = (xn, rn, objn)
-                    break
-                lam *= factor
-            if step is None:
-                if not steps:
-                    break
-                fd, lam = steps.pop(0), POLISH_DAMPING[0]
-                continue
-            it += 1
-            gain = (obj - step[2]) / max(obj, 1e-300)
-            pb = dataclasses.replace(pb, x=step[0])
-            r, obj = step[1], step[2]
-            lam = max(lam / factor, floor)
-            if gain < 0.005:
-                break
+        pb, r, J, it, obj_start, obj = levenberg(pb, lambda x: SH._residual(spec, data, x),
+                                                 lambda pb, r, fd: SH.jacobian(pb, data, r, fd))
         if J is None or not obj < obj_start:
             return s
         Jfull = np.zeros((r.size, len(pb.x)))
