@@ -455,7 +455,8 @@ POLISH_ITER = 30          # Levenberg-Marquardt iterations at most of the kept s
 POLISH_DAMPING = (0.1, 1e-4, 4.0)   # the polish's damping: start, floor, factor (up on a failed step, down after one)
 POLISH_TRIES = 8          # damped steps tried per Jacobian before a finer finite-difference step (then stop)
 POLISH_FD_FINER = (5.0, 25.0)   # the finer steps tried in turn: shapes.FD_STEP / these
-POLISH_STOP = 0.005       # the polish stops after an iteration that lowers the objective by less than this share
+POLISH_STOP = 0.005       # the polish stops after POLISH_SLOW iterations in a row that lower the objective by less
+POLISH_SLOW = 3           # than this share (one such step follows a raised damping and is no plateau)
 
 
 def levenberg(pb: Problem, residual, jacobian):
@@ -469,7 +470,7 @@ def levenberg(pb: Problem, residual, jacobian):
     obj_start = obj = SH._objective(pb, r, pb.x[pb.free], [])
     lam, floor, factor = POLISH_DAMPING
     steps, J, it = [SH.FD_STEP] + [SH.FD_STEP / f for f in POLISH_FD_FINER], None, 0
-    fd = steps.pop(0)
+    fd, small = steps.pop(0), 0
     while it < POLISH_ITER:
         J = jacobian(pb, r, fd)
         A, g, _ = SH._gram(J, r)
@@ -496,7 +497,8 @@ def levenberg(pb: Problem, residual, jacobian):
         pb = dataclasses.replace(pb, x=step[0])
         r, obj = step[1], step[2]
         lam = max(lam / factor, floor)
-        if gain < POLISH_STOP:
+        small = small + 1 if gain < POLISH_STOP else 0
+        if small >= POLISH_SLOW:
             break
     return pb, r, J, it, obj_start, obj
 
@@ -504,7 +506,7 @@ def levenberg(pb: Problem, residual, jacobian):
 def polish(s: Series, data: Data, log=print) -> Series:
     """The kept series fitted on to convergence: nominal parameters, period (free) and coefficients by
     Levenberg-Marquardt with an adaptive damping (divided by its factor after a step that lowers the objective,
-    multiplied by it until one does), at most POLISH_ITER iterations, from ``s``; the Jacobian by forward
+    multiplied by it until one does), at most POLISH_ITER iterations (fewer after POLISH_SLOW slow ones in a row), from ``s``; the Jacobian by forward
     differences at shapes.FD_STEP, at the finer steps of POLISH_FD_FINER in turn when no damping lowers the objective.
     Returns the polished series when it lowers the objective (the same model and parameters, at a better
     optimum: no held-out test; the folds' one Gauss-Newton step from the polished optimum scored it worse on
