@@ -95,3 +95,31 @@ def test_polish_keeps_the_series_when_it_cannot_be_simulated(monkeypatch):
     said = []
     assert OS.polish(s, None, said.append) is s
     assert said and "could not be fitted" in said[0]
+
+
+def test_the_polished_series_of_the_shorter_period_is_kept_by_bic(monkeypatch):
+    """outside_series.shortest_polished: a polished series that repeats with P / m is compared, by BIC, with the
+    series of P / m, polished and grown (current_ripple 3B open s28: 45.11 deg kept by the folds before any
+    polish; the polished 14.95 deg series won by BIC -2689, twin 26x -> 7.4x)."""
+    import math
+    from types import SimpleNamespace
+
+    def series(P, H, bic, heldout=math.inf):
+        return SimpleNamespace(harmonics=H, parts=("current",), heldout=heldout,
+                               component=SimpleNamespace(params=SimpleNamespace(period_rad=math.radians(P))),
+                               fit=SimpleNamespace(bic=lambda: bic, rss=1.0))
+    long = series(45.0, 6, -400.0, heldout=8.8)
+    bics = {(15.0, 2): -2700.0, (15.0, 3): -2900.0, (15.0, 6): -2880.0}
+    polished = []
+    monkeypatch.setattr(OS, "polish", lambda s, data, log: polished.append(s.harmonics) or s)
+    monkeypatch.setattr(OS, "_coefficients", lambda s: {})
+    monkeypatch.setattr(OS, "model_current_rms", lambda s, data: 1.0)
+    monkeypatch.setattr(OS, "reductions", lambda c, H, P, parts, i: [(3, H // 3, {})])
+    monkeypatch.setattr(OS, "fit_series", lambda nominal, data, P, parts, H, start, log, **kw:
+                        series(round(P, 6), H, bics[(round(P, 6), H)]))
+    quiet = lambda *a: None  # noqa: E731
+    s = OS.shortest_polished(long, None, None, quiet)
+    assert s.harmonics == 3 and s.heldout == 8.8          # grown to 3 (BIC lower), 6 not (higher than 3's)
+    assert polished == [6, 2, 3, 6]
+    bics.update({(15.0, 2): -300.0, (15.0, 3): -300.0, (15.0, 6): -300.0})
+    assert OS.shortest_polished(long, None, None, quiet) is long    # the longer series fits better: it stays

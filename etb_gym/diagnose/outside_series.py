@@ -506,8 +506,9 @@ def levenberg(pb: Problem, residual, jacobian):
 def polish(s: Series, data: Data, log=print) -> Series:
     """The kept series fitted on to convergence: nominal parameters, period (free) and coefficients by
     Levenberg-Marquardt with an adaptive damping (divided by its factor after a step that lowers the objective,
-    multiplied by it until one does), at most POLISH_ITER iterations (fewer after POLISH_SLOW slow ones in a row), from ``s``; the Jacobian by forward
-    differences at shapes.FD_STEP, at the finer steps of POLISH_FD_FINER in turn when no damping lowers the objective.
+    multiplied by it until one does), at most POLISH_ITER iterations (fewer after POLISH_SLOW slow ones in a
+    row), from ``s``; the Jacobian by forward differences at shapes.FD_STEP, at the finer steps of
+    POLISH_FD_FINER in turn when no damping lowers the objective.
     Returns the polished series when it lowers the objective (the same model and parameters, at a better
     optimum: no held-out test; the folds' one Gauss-Newton step from the polished optimum scored it worse on
     detent_torque 3B open s28, 302 -> 366, where the held-out recording went from 15.2x to 11.0x), else ``s``.
