@@ -546,20 +546,11 @@ def polish(s: Series, data: Data, log=print) -> Series:
     return p
 
 
-def _bic_apart(a: F.FitResult, b: F.FitResult) -> float:
-    """BIC of ``a`` minus BIC of ``b`` (FitResult.bic's form) at a common effective sample size, m over the larger
-    of the two integrated autocorrelation times: each fit's own time makes the better fit's BIC higher where its
-    residual, smaller, is more correlated (current_ripple 3B open s28: a 6-harmonic series, RSS 1.445e4 against
-    2.071e4 for 2 harmonics, scored BIC +28 with their own times)."""
-    me = a.m / max(a.tau_int, b.tau_int, 1e-12)
-    ll = lambda f: me * math.log(max(f.rss, 1e-300) / f.m)      # noqa: E731
-    return ll(a) - ll(b) + (len(a.x) - len(b.x)) * math.log(me)
-
-
 def shortest_polished(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series:
     """The polished series ``s`` (:func:`polish`) or, where it repeats with a shorter period P / m
     (:func:`reductions`), the series of P / m started from its every m-th harmonics, polished too and grown
-    to SERIES_HARMONICS (each growth polished): the one with the lowest BIC (:func:`_bic_apart`). The search's :func:`reduced` scores such a reduction by the held-out
+    to SERIES_HARMONICS (each growth polished): the one with the lowest BIC (FitResult.bic, as
+    :func:`subharmonic` compares periods). The search's :func:`reduced` scores such a reduction by the held-out
     folds before any polish, where its period is still the longer series' P / m: current_ripple 3B open s28 (a
     sine per ampere of 14.94 deg) kept a 6-harmonic series of 45.11 deg (held-out 8.83 against 19.6 for the
     2-harmonic series of 15.04 deg); polished, the series of 15.04 deg walked to 14.95 deg, RSS 6491 against
@@ -579,16 +570,14 @@ def shortest_polished(s: Series, nominal: F.FitResult, data: Data, log=print) ->
                            log, period_free=False, heldout=False, grown_from=r)
             if q is not None:
                 q = polish(q, data, log)
-                d = _bic_apart(q.fit, r.fit)
                 log(f"  the polished series of {math.degrees(q.component.params.period_rad):.2f} deg with {Hg} "
-                    f"harmonics: BIC {d:+.1f} against {r.harmonics}")
-                if d < 0:
+                    f"harmonics: BIC {q.fit.bic() - r.fit.bic():+.1f} against {r.harmonics}")
+                if q.fit.bic() < r.fit.bic():
                     r = q
-        d = _bic_apart(r.fit, best.fit)
-        keep = d < 0
+        keep = r.fit.bic() < best.fit.bic()
         log(f"  the polished series of {P:.2f} deg repeats with 1/{m} of it: "
             f"{math.degrees(r.component.params.period_rad):.2f} deg, {r.harmonics} harmonics, RSS {r.fit.rss:.4g} "
-            f"against {best.fit.rss:.4g}, BIC {d:+.1f}" + (" (kept)" if keep else ""))
+            f"against {best.fit.rss:.4g}, BIC {r.fit.bic() - best.fit.bic():+.1f}" + (" (kept)" if keep else ""))
         if keep:
             r.heldout = best.heldout       # the search's score (the tables and other series were compared on it)
             return r
