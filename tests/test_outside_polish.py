@@ -123,24 +123,3 @@ def test_the_polished_series_of_the_shorter_period_is_kept_by_bic(monkeypatch):
     assert polished == [6, 2, 3, 6]
     bics.update({(15.0, 2): -300.0, (15.0, 3): -300.0, (15.0, 6): -300.0})
     assert OS.shortest_polished(long, None, None, quiet) is long    # the longer series fits better: it stays
-
-
-def test_the_series_twin_is_polished_on_the_replay_and_the_outcome_follows(monkeypatch):
-    """outside_series.polish_on_replay (called by run.polish for the final open-loop model of more than
-    POLISH_MAX_PARAMS parameters): only a twin whose fit is the outside description's series is polished; the
-    Outcome then carries the polished series (the report's table is the twin's)."""
-    from types import SimpleNamespace
-
-    fr, new_fit = object(), object()
-    series = SimpleNamespace(fit=fr)
-    polished = SimpleNamespace(fit=new_fit)
-    monkeypatch.setattr(OS, "polish", lambda s, data, log: polished if s is series else s)
-    g = SimpleNamespace(series=series, fit=fr)
-    monkeypatch.setattr(OS.dataclasses, "replace", lambda obj, **kw: SimpleNamespace(**{**vars(obj), **kw}))
-    shaped = SimpleNamespace(outside=True, generic=g)
-    assert OS.polish_on_replay(fr, None, shaped) is new_fit
-    assert shaped.generic.series is polished and shaped.generic.fit is new_fit
-    other = object()                                          # a model that is not the series' fit: left alone
-    assert OS.polish_on_replay(other, None, SimpleNamespace(outside=True, generic=g)) is other
-    assert OS.polish_on_replay(fr, None, SimpleNamespace(outside=False, generic=g)) is fr
-    assert OS.polish_on_replay(fr, None, None) is fr
