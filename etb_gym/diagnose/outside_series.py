@@ -546,28 +546,6 @@ def polish(s: Series, data: Data, log=print) -> Series:
     return p
 
 
-def polish_on_replay(fr: F.FitResult, data: Data, shaped, log=print) -> F.FitResult:
-    """The final model ``fr`` of a recording outside the catalogue whose twin carries a Fourier series
-    (``shaped``: refine.Outcome, outside, its generic model's fit ``fr``) polished (:func:`polish`) on ``data``,
-    the continuous replay (run.polish: the score of an open-loop recording and of the held-out twin); the
-    Outcome's series and fit become the polished ones (the report's table is the twin's). Any other model: ``fr``.
-
-    Why: the search fits on the restart view (every segment restarted at the readings) and run.polish's refit on
-    the continuous replay skips a model of more than POLISH_MAX_PARAMS parameters, so a series twin was never
-    fitted on the replay it is scored on. Measured on the pickled twins of main (round 29, d29outside;
-    ``scripts/twin_coverage.py`` cases, the polish run on them): detent_torque 3B open s28 training replay 23.4x
-    -> 1.15x the noise, held-out 15.2x -> 11.0x (its static torque within 0.7 mN m of the truth's over the
-    stroke); s32 6.1x -> 2.2x, held-out 15.9x -> 5.0x; s36 6.1x -> 1.3x, held-out 18.4x -> 7.8x."""
-    g = getattr(shaped, "generic", None)
-    if shaped is None or not shaped.outside or g is None or g.series is None or g.fit is not fr:
-        return fr
-    p = polish(g.series, data, log)
-    if p is g.series:
-        return fr
-    shaped.generic = dataclasses.replace(g, series=p, fit=p.fit)
-    return p.fit
-
-
 def shortest_polished(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series:
     """The polished series ``s`` (:func:`polish`) or, where it repeats with a shorter period P / m
     (:func:`reductions`), the series of P / m started from its every m-th harmonics, polished too and grown

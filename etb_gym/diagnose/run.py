@@ -222,9 +222,6 @@ def polish(fr: F.FitResult, data: Data, shaped=None, final: bool = False, note: 
     if ref is not None:
         return polish_shaped(fr, ref, data)
     if not 0 < len(fr.x) <= POLISH_MAX_PARAMS:
-        if final:         # a twin outside the catalogue with a Fourier series: its own polish (round 29)
-            from .outside_series import polish_on_replay
-            return polish_on_replay(fr, data, shaped, log=lambda *a: None)
         return fr
     try:
         out = F.fit(fr.spec, data, fr.x, max_nfev=POLISH_NFEV)
