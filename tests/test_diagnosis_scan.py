@@ -106,6 +106,10 @@ def test_a_replay_whose_folds_would_not_see_the_plate_move_over_the_same_angles_
     assert F.fold_block_s(rd, 1.0) == 1.0                            # a block length asked for is kept
     still = NS(rec=NS(t_s=t, angle_deg=np.full(t.size, 5.0)), residual="replay")
     assert F.fold_cover(still, F.FOLD_BLOCK_S) == 1.0 and F.fold_block_s(still) == F.FOLD_BLOCK_S
+    burst = NS(rec=NS(t_s=t, angle_deg=np.interp(t, [0.0, 0.05, 0.2, 6.0], [5.0, 5.0, 60.0, 60.0])), residual="replay")
+    cover = F.fold_cover(burst, F.FOLD_BLOCK_S)                      # one sweep, in the first block
+    assert cover < F.FOLD_COVER_MIN and all(F.fold_cover(burst, b) <= cover for b in F.FOLD_BLOCKS_SHORT_S)
+    assert F.fold_block_s(burst) == F.FOLD_BLOCK_S                   # no shorter block sees more: kept
 
 
 def _two_basins(a=(1.0, 0.0), b=(4.0, 6.0)):

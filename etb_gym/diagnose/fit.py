@@ -118,13 +118,17 @@ def fold_block_s(rd, block_s: float = FOLD_BLOCK_S) -> float:
     +93 % with 0.1 s blocks, docs/diagnosis-history.md round 13)."""
     if rd.residual == "observer":
         return min(block_s, FOLD_BLOCK_OBSERVER_S)
-    if block_s != FOLD_BLOCK_S or fold_cover(rd, block_s) >= FOLD_COVER_MIN:
+    if block_s != FOLD_BLOCK_S:
         return block_s
-    return max(FOLD_BLOCKS_SHORT_S, key=lambda b: fold_cover(rd, b))      # ties: the longest (listed first)
+    cover = fold_cover(rd, block_s)
+    if cover >= FOLD_COVER_MIN:
+        return block_s
+    best = max(FOLD_BLOCKS_SHORT_S, key=lambda b: fold_cover(rd, b))      # ties: the longest (listed first)
+    return best if fold_cover(rd, best) > cover else block_s             # no shorter block sees more: as before
 
 
 FOLD_COVER_MIN = 0.5          # a replay's folds must each see the plate move over this share of the angles it moves over
-FOLD_BLOCKS_SHORT_S = (0.4, 0.3, 0.25)   # ... else the block length (of these) whose folds see most of them
+FOLD_BLOCKS_SHORT_S = (0.4, 0.3, 0.25)   # ... else the block length (of these) whose folds see most of them, if more
 COVER_BIN_DEG = 2.5           # fold_cover's angle bins
 COVER_SPEED_DEG_S = 5.0       # the plate moves: its angle (10 ms mean) changes faster than this
 COVER_MIN_SAMPLES = 5         # an angle bin the plate moves through: at least this many moving samples
@@ -137,7 +141,7 @@ def fold_cover(rd, block_s: float) -> float:
     above some angle: the other fold's fit then extrapolates there, and a right model does not predict the folds
     (measured: airflow_torque@1 random s36, open loop, the plate stuck at 25 and 60 deg; one fold of 0.5 s blocks
     moved only below 25 deg: airflow's formula -0 % held-out, its table 994; with 0.4 s blocks (fold_block_s chooses them) +90 % and 8.5, airflow named, twin 21x -> 1.4x;
-    docs/diagnosis-rounds/round29-c29naming.md)."""
+    docs/diagnosis-history.md, round 29 c29naming)."""
     t, phi = rd.rec.t_s, np.asarray(rd.rec.angle_deg, float)
     if t.size < 3:
         return 1.0
