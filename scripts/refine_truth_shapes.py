@@ -1,6 +1,6 @@
 """Shape refinement (method step 3b) on the proof's truth shapes that are not the candidates' formulas, without
 the selection: the family's own candidate is fitted (its formula), then refined by its table(s)
-(shapes.refine_family), and both twins predict a held-out recording with the other excitation.
+(family_table.refine_family), and both twins predict a held-out recording with the other excitation.
 
 Per case (family, shape, seed): truth = 3B (friction and spring perturbed) with proof_truth.truth_for(family,
 shape) at magnitude ``--scale``; an open-loop training recording and a closed-loop held-out one (``--duration``
@@ -24,7 +24,7 @@ import numpy as np
 def run(family: str, shape: int, seed: int, scale: float, duration: float, substeps: int) -> dict:
     from etb_gym import make_plant
     from etb_gym.diagnose import fit as F
-    from etb_gym.diagnose import shapes as S
+    from etb_gym.diagnose import family_table as FT
     from etb_gym.diagnose.candidates import CANDIDATES
     from etb_gym.diagnose.measurement import SensorModel
     from etb_gym.diagnose.model import Spec, angle_residuals_deg, prepare, simulate
@@ -44,7 +44,7 @@ def run(family: str, shape: int, seed: int, scale: float, duration: float, subst
     t0 = time.perf_counter()
     nominal = F.fit(Spec(base), data, max_nfev=30)
     formula = F.fit(Spec(base).with_candidate(CANDIDATES[family]), data, max_nfev=30)
-    ref = S.refine_family(formula, family, data, log=lambda *a: None)
+    ref = FT.refine_family(formula, family, data, log=lambda *a: None)
     rms = lambda fr: float(np.sqrt(np.mean(angle_residuals_deg(simulate(*fr.spec.build(fr.x), hd), hd)[0] ** 2))) / noise
     row = {"family": family, "shape": shape, "seed": seed, "scale": scale,
            "heldout_nominal": rms(nominal), "heldout_formula_twin": rms(formula),

@@ -5,9 +5,9 @@ twin) and reports, in units of the noise the truth added:
 
   * the twin's held-out RMS as the diagnosis exported it, and after a round trip through a plant file
     (.toml and .json: the export must not change the twin);
-  * the same twin with every family's total over angle (formula + its learned table, ``shapes.formula_profile``)
+  * the same twin with every family's total over angle (formula + its learned table, ``penalized.formula_profile``)
     held at its value at the edge of the angles the *training* recording visited (0.1 % / 99.9 % quantiles),
-    formula and table replaced by one table of the same kind on a 0.5 deg grid: what ``shapes.hold_rows`` makes
+    formula and table replaced by one table of the same kind on a 0.5 deg grid: what ``penalized.hold_rows`` makes
     the refinement do, applied to a twin fitted without it.
 
     nice -n 10 .venv/bin/python scripts/twin_coverage.py --cases angle_dependent_friction@1:5:3B --work /tmp/tw \\
@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import twin_coverage as TC  # noqa: E402
 
 from etb_gym.diagnose import shapes as S  # noqa: E402
+from etb_gym.diagnose import penalized as P  # noqa: E402
 from etb_gym.plantfile import load_plant, save_plant  # noqa: E402
 
 
@@ -44,7 +45,7 @@ def held_beyond(twin, lo_deg: float, hi_deg: float):
             continue
         fixed = tuple((f, getattr(m.params, f)) for f in m.scalar_fields)
         term = S.MapTerm(m.name, "", type(m), grid, m.value_fields, 1.0, "", fixed)
-        prof = S.formula_profile(e, term)
+        prof = P.formula_profile(e, term)
         if prof is None:
             continue
         total = prof + m.evaluate(grid)

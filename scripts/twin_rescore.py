@@ -1,6 +1,6 @@
 """Re-score the exported twin of a finished diagnosis (issue 15, round 7): the same diagnosis, the twin's held-out
 RMS at the diagnosis's integrator step and at the step ``run.twin_substeps`` now gives it, and (``--refit``) with
-the accepted family's table refitted from the same formula fit (``shapes.refine_family``, anchored knots).
+the accepted family's table refitted from the same formula fit (``family_table.refine_family``, anchored knots).
 
 The case's truth, training and held-out recordings are rebuilt exactly as the proof builds them
 (``twin_harness.py`` cases ``FAMILY[@K]:SEED[:NAMEPLATE]``); OUT is the diagnosis folder of that case (report.json,
@@ -79,9 +79,9 @@ def static_torque_Nm(plant, angles_deg) -> np.ndarray:
 
 
 def refit(case, out: Path, rep: dict, rec, plant_file):
-    """The accepted family's table refitted (this tree's shapes.refine_family) from the report's formula fit."""
+    """The accepted family's table refitted (this tree's family_table.refine_family) from the report's formula fit."""
     from etb_gym.diagnose import fit as F
-    from etb_gym.diagnose import shapes as S
+    from etb_gym.diagnose import family_table as FT
     from etb_gym.diagnose.candidates import CANDIDATES
     from etb_gym.diagnose.model import Spec, restart_view
     from etb_gym.plant import make_plant
@@ -92,17 +92,17 @@ def refit(case, out: Path, rep: dict, rec, plant_file):
     vals = {k: v["value"] for k, v in rep["calibrated_parameters"].items()}
     vals.update({f"{cid}.{k}": v["value"] for k, v in rep["effects"][0]["parameters"].items()})
     fr = F.FitResult(spec, spec.x_from_values(vals), 0.0, 1, None, 0)
-    ref = S.refine_family(fr, cid, restart_view(data), log=lambda *a: None)
+    ref = FT.refine_family(fr, cid, restart_view(data), log=lambda *a: None)
     return ref.fit.spec.build(ref.fit.x), ref
 
 
 def named_case(case: str, duration: float, work: Path, static=None) -> dict:
     """Without a diagnosis: the case's own family taken as named (its formula fitted as the selection fits it: the
     nominal model first, then nominal + formula, FULL_NFEV each, at the step ``run.choose_substeps`` picks), its
-    table refined by this tree's ``shapes.refine_family``; the twin (formula + table, at 40 substeps) replayed on
+    table refined by this tree's ``family_table.refine_family``; the twin (formula + table, at 40 substeps) replayed on
     the held-out recording. Isolates the refinement from the selection: the same formula fit on every tree."""
     from etb_gym.diagnose import fit as F
-    from etb_gym.diagnose import shapes as S
+    from etb_gym.diagnose import family_table as FT
     from etb_gym.diagnose.candidates import CANDIDATES
     from etb_gym.diagnose.explain import FULL_NFEV
     from etb_gym.diagnose.model import Spec, restart_view
@@ -127,7 +127,7 @@ def named_case(case: str, duration: float, work: Path, static=None) -> dict:
     formula = F.fit(spec, data, np.concatenate([nominal.x, np.zeros(len(spec.params) - len(nominal.x))]),
                     max_nfev=FULL_NFEV, scan=len(nominal.x))
     c1 = time.process_time()
-    ref = S.refine_family(formula, cid, restart_view(data), log=lambda *a: None)
+    ref = FT.refine_family(formula, cid, restart_view(data), log=lambda *a: None)
     c2 = time.process_time()
     hd = prepare([held], base.supply.voltage_V)
     smt = sensor_model({k: v for k, v in skw.items() if k != "resolution_deg"}, rec.dt_s)

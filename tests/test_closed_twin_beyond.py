@@ -12,7 +12,7 @@ def test_the_edges_slope_is_continued_where_the_formula_goes_further():
     prof = -0.001 * np.arange(GRID.size) ** 2        # the formula steepens
     total = np.zeros(GRID.size)
     total[:7] = [0, 0, 0, 0, -0.002, -0.004, -0.006]  # visited 0..60 deg, still falling at the edge
-    total[7:] = -0.006                               # held (shapes.hold_rows)
+    total[7:] = -0.006                               # held (penalized.hold_rows)
     out = _continued(total, prof, GRID, np.arange(7), math.nan)
     np.testing.assert_allclose(out[7:], [-0.008, -0.010, -0.012])
     np.testing.assert_array_equal(out[:7], total[:7])  # the visited knots are untouched

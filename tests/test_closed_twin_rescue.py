@@ -1,4 +1,4 @@
-"""closed_twin.replay_rescue: a closed loop's table that the observer's folds keep below shapes.MIN_GAIN, kept
+"""closed_twin.replay_rescue: a closed loop's table that the observer's folds keep below family_table.MIN_GAIN, kept
 when the replay of the recorded voltage (which neither model was fitted on) gains clearly and the observer's cost
 does not rise (round 28). Stand-ins for the two residuals: no simulation."""
 import types

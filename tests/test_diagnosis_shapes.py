@@ -14,6 +14,8 @@ from etb_gym.components import effects as fx
 from etb_gym.components.effects_maps import table_lookup
 from etb_gym.diagnose import fit as F
 from etb_gym.diagnose import shapes as S
+from etb_gym.diagnose import penalized as P
+from etb_gym.diagnose import family_table as FT
 from etb_gym.diagnose import outside_series as OS
 from etb_gym.diagnose import unmodelled as U
 from etb_gym.diagnose.model import Spec, prepare
@@ -114,7 +116,7 @@ def test_refined_airflow_table_beats_the_polynomial_on_a_gaussian_bump():
     base = make_plant("3B", substeps=20)
     spec = Spec(base).with_candidate(CANDIDATES["airflow_torque"])
     formula = F.fit(spec, data, max_nfev=30)
-    ref = S.refine_family(formula, "airflow_torque", data, log=lambda *a: None)
+    ref = FT.refine_family(formula, "airflow_torque", data, log=lambda *a: None)
     assert ref.kept and ref.heldout_map < 0.5 * ref.heldout_formula, (ref.heldout_map, ref.heldout_formula)
     tab = ref.table()
     phi = np.asarray(tab["angle_rad"])
@@ -303,13 +305,13 @@ def test_knots_the_recordings_did_not_visit_are_anchored_to_the_formula():
     seen = (g >= 10) & (g <= 30)
     J = np.eye(n)[seen]
     r = -np.interp(g, [10, 30], [1.0, 2.0])[seen]                  # residual r + J c = 0 at c = ramp
-    pb = S.Problem.make(Spec(base).with_candidate(term.candidate()), np.zeros(len(Spec(base).params) + n),
+    pb = P.Problem.make(Spec(base).with_candidate(term.candidate()), np.zeros(len(Spec(base).params) + n),
                         (term.id,), [term], data)
     free_tab = np.zeros((r.size, pb.free.size))
     free_tab[:, :] = J
-    d = S._solve(free_tab, r, pb, [1e-3])
+    d = P._solve(free_tab, r, pb, [1e-3])
     plain = dataclasses.replace(pb, groups=[(D, ridge, np.zeros_like(a), h) for D, ridge, a, h in pb.groups])
-    d0 = S._solve(free_tab, r, plain, [1e-3])
+    d0 = P._solve(free_tab, r, plain, [1e-3])
     far = g > 60
     assert np.all(np.abs(d[far]) < 0.05), d
     assert np.all(d0[far] > 2.5), d0                                # without the anchor: the ramp continued
@@ -326,7 +328,7 @@ def test_beyond_the_visited_range_a_family_table_holds_the_formula_plus_table_at
     base = make_plant("3B")
     term = S.family_term("angle_dependent_friction", base, data)
     formula = AngleDependentFriction(slope_Nm=0.04, curvature_Nm=0.12)
-    prof = S.formula_profile(formula, term)
+    prof = P.formula_profile(formula, term)
     x = term.grid / (0.5 * np.pi) - 0.5
     assert np.allclose(prof, 0.04 * x + 0.12 * (x * x - 1.0 / 12.0), atol=1e-12)
     g = np.degrees(term.grid)
@@ -335,15 +337,15 @@ def test_beyond_the_visited_range_a_family_table_holds_the_formula_plus_table_at
     r = -np.full(seen.sum(), 0.5)                                   # the data ask for 0.5 (normalized) there
     spec = Spec(base).with_candidate(term.candidate())
     x0 = np.zeros(len(Spec(base).params) + n)
-    pb = S.Problem.make(spec, x0, (term.id,), [term], data, formula=formula)
-    d = S._solve(np.eye(n)[seen], r, pb, [1e-3])
+    pb = P.Problem.make(spec, x0, (term.id,), [term], data, formula=formula)
+    d = P._solve(np.eye(n)[seen], r, pb, [1e-3])
     total = d * term.scale + prof
     vis = S.visit_time_s(term, data) >= S.VISIT_MIN_S
     lo, hi = np.flatnonzero(vis)[[0, -1]]
     assert np.allclose(total[:lo], total[lo], atol=2e-4) and np.allclose(total[hi + 1:], total[hi], atol=2e-4), total
     assert abs(prof[-1] - prof[hi]) > 0.05                          # where the formula alone would have gone
     assert np.allclose(d[seen], 0.5, atol=0.05)
-    plain = S._solve(np.eye(n)[seen], r, S.Problem.make(spec, x0, (term.id,), [term], data), [1e-3])
+    plain = P._solve(np.eye(n)[seen], r, P.Problem.make(spec, x0, (term.id,), [term], data), [1e-3])
     assert np.all(np.abs(plain[~vis]) < 0.05)                       # without the formula: anchored to 0, as before
 
 def test_refined_airflow_table_leaves_the_torque_at_limp_home_to_the_spring():
@@ -361,7 +363,7 @@ def test_refined_airflow_table_leaves_the_torque_at_limp_home_to_the_spring():
     data = prepare([rec], 12.0)
     spec = Spec(make_plant("3B", substeps=20)).with_candidate(CANDIDATES["airflow_torque"])
     formula = F.fit(spec, data, max_nfev=30)
-    ref = S.refine_family(formula, "airflow_torque", data, log=lambda *a: None)
+    ref = FT.refine_family(formula, "airflow_torque", data, log=lambda *a: None)
     assert ref.kept
     twin, _ = ref.fit.spec.build(ref.fit.x)
 
@@ -406,18 +408,18 @@ def test_a_family_table_is_fitted_on_both_views_of_an_open_loop_replay(monkeypat
         seen.append(view.continuity)
         x = pb.x.copy()
         x[-1] = 1.0 if view.continuity else 2.0        # marks which view's fit it is
-        return S.PenalizedFit(F.FitResult(pb.spec, x, 1.0, 10, None, 0), [1.0], [1.0], None, pb, [])
+        return P.PenalizedFit(F.FitResult(pb.spec, x, 1.0, 10, None, 0), [1.0], [1.0], None, pb, [])
 
-    def fake_heldout(pb, d, lams=(), J=None, jac_substeps=S.JAC_SUBSTEPS):
+    def fake_heldout(pb, d, lams=(), J=None, jac_substeps=P.JAC_SUBSTEPS):
         assert not d.continuity or d is data            # always scored on the view given to refine_family
         return {1.0: 0.5, 2.0: 0.8}.get(float(pb.x[-1]), 1.0) if len(pb.x) > len(fr.x) else 1.0
 
-    monkeypatch.setattr(S, "fit_penalized", fake_fit)
-    monkeypatch.setattr(S, "heldout_error", fake_heldout)
-    ref = S.refine_family(fr, "airflow_torque", restart_view(data), log=lambda *a: None)
+    monkeypatch.setattr(FT, "fit_penalized", fake_fit)
+    monkeypatch.setattr(FT, "heldout_error", fake_heldout)
+    ref = FT.refine_family(fr, "airflow_torque", restart_view(data), log=lambda *a: None)
     assert seen == [False, True] and ref.heldout_map == 0.5 and ref.fit.x[-1] == 1.0 and ref.kept
     seen.clear()
-    ref = S.refine_family(fr, "airflow_torque", data, log=lambda *a: None)
+    ref = FT.refine_family(fr, "airflow_torque", data, log=lambda *a: None)
     assert seen == [True] and ref.heldout_map == 0.5
 
 

@@ -3,6 +3,7 @@ are nearly all of one sign), with more near the current's sign change (diagnose.
 import numpy as np
 
 from etb_gym.diagnose import shapes as S
+from etb_gym.diagnose import family_table as FT
 
 
 def test_current_knots_are_shared_by_extent_with_more_near_zero():
@@ -58,7 +59,7 @@ def test_a_torque_constant_error_gets_a_current_table_for_the_torque_alone():
 
 def test_a_torque_constant_error_gets_a_torque_constant_apart_from_the_back_emf_constant():
     """Round 27: a torque per ampere added for each direction of the current with the back-EMF unchanged, its fit
-    started from a grid over the torque and the back-EMF constants (shapes.split_start)."""
+    started from a grid over the torque and the back-EMF constants (family_table.split_start)."""
     from etb_gym.components import effects as fx
     from etb_gym.diagnose.model import prepare
     from etb_gym.recordings import Recording
@@ -103,7 +104,7 @@ def test_the_split_start_finds_a_torque_constant_and_a_back_emf_constant_the_for
         fun.failure = None
         return fun
     monkeypatch.setattr(F, "make_fun", lambda spec_, data_: fake_fun(target))
-    x = S.split_start(spec, x0.copy(), cid, term, None)
+    x = FT.split_start(spec, x0.copy(), cid, term, None)
     assert np.allclose(x, target, atol=1e-3)
     monkeypatch.setattr(F, "make_fun", lambda spec_, data_: fake_fun(x0))
-    assert np.allclose(S.split_start(spec, x0.copy(), cid, term, None), x0)
+    assert np.allclose(FT.split_start(spec, x0.copy(), cid, term, None), x0)

@@ -4,6 +4,7 @@ import numpy as np
 
 from etb_gym import make_plant
 from etb_gym.diagnose import shapes as S
+from etb_gym.diagnose import penalized as P
 from etb_gym.diagnose.candidates import CANDIDATES
 from etb_gym.diagnose.model import Spec, prepare
 from etb_gym.diagnose.shapes_eval import AngleShape
@@ -42,11 +43,11 @@ def _problem():
     spec = Spec(make_plant("3B", substeps=20)).with_candidate(CANDIDATES["airflow_torque"])
     term = S.family_term("airflow_torque", spec.base, data)
     spec_m = spec.with_candidate(term.candidate())
-    pb = S.Problem.make(spec_m, np.zeros(len(spec_m.params)), ("nominal", term.id), [term], data)
+    pb = P.Problem.make(spec_m, np.zeros(len(spec_m.params)), ("nominal", term.id), [term], data)
     return pb, data
 
 
 def test_table_jacobian_reuses_the_residual_at_the_models_own_step():
     pb, data = _problem()
-    r = S._residual(pb.spec, data, pb.x)
-    np.testing.assert_array_equal(S._jacobian_at(pb, data, r, S.JAC_SUBSTEPS), S.jacobian(pb, data, r.copy()))
+    r = P._residual(pb.spec, data, pb.x)
+    np.testing.assert_array_equal(P._jacobian_at(pb, data, r, P.JAC_SUBSTEPS), P.jacobian(pb, data, r.copy()))

@@ -145,9 +145,9 @@ def test_the_twin_is_refitted_at_its_own_finer_step():
 
 def test_a_tables_penalty_as_residual_rows_is_the_penalty():
     """run.polish_shaped refits a model with a learned table by least squares with the table's penalty appended as
-    rows (shapes.Problem.penalty_rows): |S theta - c|^2 must equal theta^T P theta - 2 pull^T theta up to one
+    rows (penalized.Problem.penalty_rows): |S theta - c|^2 must equal theta^T P theta - 2 pull^T theta up to one
     constant, for roughness, ridge, anchored knots, knots held at targets and a nameplate prior alike."""
-    from etb_gym.diagnose.shapes import Problem
+    from etb_gym.diagnose.penalized import Problem
     rng = np.random.default_rng(3)
     n = 6                                             # two nominal parameters, then a 4-knot table
     D = np.zeros((2, n))
@@ -170,11 +170,11 @@ def test_a_tables_penalty_as_residual_rows_is_the_penalty():
 
 
 def test_a_model_with_a_table_is_polished_on_the_continuous_replay_with_its_penalty():
-    """run.polish of a model whose family got a table (shapes.refine_family) on an open-loop recording: refitted on
+    """run.polish of a model whose family got a table (family_table.refine_family) on an open-loop recording: refitted on
     the continuous replay with the table's penalty (round 15), so that replay's cost falls; an angle family's
     table holds knots at targets made from its formula, so the formula's parameters stay where they were."""
     from etb_gym.diagnose import fit as F
-    from etb_gym.diagnose import shapes as S
+    from etb_gym.diagnose import family_table as FT
     from etb_gym.diagnose.candidates import CANDIDATES
     from etb_gym.diagnose.model import Spec, restart_view
     from etb_gym.diagnose.refine import Outcome
@@ -185,7 +185,7 @@ def test_a_model_with_a_table_is_polished_on_the_continuous_replay_with_its_pena
     data = prepare([make_recording(truth, np.random.default_rng(5), duration_s=4.0, name="bump.csv")], 12.0)
     spec = Spec(make_plant("3B", substeps=20)).with_candidate(CANDIDATES["airflow_torque"])
     formula = F.fit(spec, restart_view(data), max_nfev=30)
-    ref = S.refine_family(formula, "airflow_torque", restart_view(data), log=lambda *a: None)
+    ref = FT.refine_family(formula, "airflow_torque", restart_view(data), log=lambda *a: None)
     assert ref.kept and ref.problem.holds()
     out = polish(ref.fit, data, Outcome(refinements=[ref]))
     assert out is not ref.fit

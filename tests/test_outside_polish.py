@@ -16,7 +16,7 @@ class _Box:
 
 
 @dataclasses.dataclass
-class _Problem:                      # what levenberg uses of a shapes.Problem
+class _Problem:                      # what levenberg uses of a penalized.Problem
     spec: _Box
     x: np.ndarray
     free: np.ndarray

@@ -148,12 +148,12 @@ def test_a_sensing_familys_map_replaces_the_later_effects_only_when_it_predicts_
     """sensor_map.replaces_later: the first step's sensor map against every step, by held-out error (no
     simulation here: the map, the fits and the held-out errors stand in)."""
     from types import SimpleNamespace
-    from etb_gym.diagnose import shapes as S
+    from etb_gym.diagnose import penalized as P
     first, final = _fake_fit(["sensor_offset_gain"]), _fake_fit(["sensor_offset_gain", "shaft_flux_loss"])
     sref = SM.SensorRefinement("sensor_offset_gain", "curve", None, 1.0, 10.0, 1.0, kept=True, fit=first)
     monkeypatch.setattr(SM, "refine_sensor", lambda cur, fid, data, log: sref)
-    monkeypatch.setattr(S.Problem, "make", classmethod(lambda cls, spec, x, ids: spec))
-    monkeypatch.setattr(S, "heldout_error", lambda spec, data: h_first if spec is first.spec else h_all)
+    monkeypatch.setattr(P.Problem, "make", classmethod(lambda cls, spec, x, ids: spec))
+    monkeypatch.setattr(P, "heldout_error", lambda spec, data: h_first if spec is first.spec else h_all)
     steps = [SimpleNamespace(id="sensor_offset_gain", fit=first), SimpleNamespace(id="shaft_flux_loss", fit=final)]
     got = SM.replaces_later(steps, final, None, log=lambda *a: None)
     assert (got is sref) == dropped

@@ -64,6 +64,7 @@ def test_thermal_network_params_errors_name_the_field(bad, match):
 def test_coil_heating_has_a_table_form_over_log_spaced_time_constants():
     from diagnose_stubs import swing_data
     from etb_gym.diagnose import shapes as S
+    from etb_gym.diagnose import penalized as P
     data = swing_data(30.0, 20.0)                 # 3 s
     t = S.family_term("coil_heating", make_plant("3B"), data)
     assert t.cls is fx.ThermalNetwork and t.grid.size == S.THERMAL_BRANCHES
@@ -77,7 +78,7 @@ def test_coil_heating_has_a_table_form_over_log_spaced_time_constants():
     v = [u for u in S.family_terms("coil_heating", make_plant("3B"), data) if u.id == "coil_heating_voltage_map"]
     assert len(v) == 1 and v[0].n_coef == 2 * t.grid.size          # the loss that goes with u^2: the folds decide
     # the folds score the current's rows too where a current was recorded (here none: the angle alone)
-    assert not t.score_current and not S.Problem.make(*_spec_x(t), ("nominal", t.id), [t], data).score_current
+    assert not t.score_current and not P.Problem.make(*_spec_x(t), ("nominal", t.id), [t], data).score_current
 
 
 def _spec_x(term):
@@ -88,14 +89,15 @@ def _spec_x(term):
 
 def test_the_folds_score_the_current_rows_of_a_heating_table():
     from etb_gym.diagnose import shapes as S
+    from etb_gym.diagnose import penalized as P
     from etb_gym.diagnose.model import prepare
     from etb_gym.recordings import Recording
     t = np.arange(2000) * 1e-3
     rec = Recording(name="r.csv", t_s=t, voltage_V=np.full(t.size, 2.0), angle_deg=20.0 + 5.0 * np.sin(t),
                     current_A=np.full(t.size, 1.0), supply_V=None)
     data = prepare([rec], 12.0)
-    fold, scored = S._row_info(data)
-    fold_c, scored_c = S._row_info(data, current=True)
+    fold, scored = P._row_info(data)
+    fold_c, scored_c = P._row_info(data, current=True)
     assert scored.sum() == t.size and scored_c.sum() == 2 * t.size and np.array_equal(fold, fold_c)
     term = S.family_term("coil_heating", make_plant("3B"), data)
-    assert term.score_current and S.Problem.make(*_spec_x(term), ("nominal", term.id), [term], data).score_current
+    assert term.score_current and P.Problem.make(*_spec_x(term), ("nominal", term.id), [term], data).score_current

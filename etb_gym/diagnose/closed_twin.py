@@ -116,14 +116,16 @@ def continue_tables(final: F.FitResult, shaped, data: Data, note: dict | None = 
     does not get worse by more than its noise (sqrt(2 n)).
 
     Why: a closed loop visits the angles its set points need; the exported twin is used over the whole stroke.
-    Beyond the visited knots the table held the family's total at its value at the last one (shapes.hold_rows):
+    Beyond the visited knots the table held the family's total at its value at the last one (penalized.hold_rows):
     a total that was still changing at the edge stops there. Measured (docs/diagnosis-history.md, round 23):
     shaft_flux_loss@2 random seed 25, trained 3.7-64.6 deg, held-out to 83 deg: the total held at -0.0108 N m/A
     from 67.5 deg on, the held-out twin 22.8x the noise; the slope of the interval next to the edge's continued
     2.71x (of the edge's own 3.35x); the formula's own continuation (exponent at its bound) 79.7x. The knots are
     edited after the fits, which never saw them: the fitted model inside the visited range is unchanged. ``note`` gets the figures (report.json
     ``replay_tables.beyond_visited``)."""
-    from .shapes import VISIT_MIN_S, _formula_component, formula_profile, visit_time_s
+    from .family_table import _formula_component
+    from .penalized import formula_profile
+    from .shapes import VISIT_MIN_S, visit_time_s
     if shaped is None or not data.recs or not all(rd.residual == "observer" for rd in data.recs):
         return final
     x = final.x.copy()
@@ -288,8 +290,8 @@ REPLAY_TABLE_GAIN = 0.2     # replay_rescue: the share of the replay's cost a ta
 
 
 def replay_rescue(cur: F.FitResult, ref, data: Data, log=print) -> bool:
-    """Closed loops (every recording scored by the observer): is ``ref`` (shapes.refine_family's best table for a
-    family of ``cur``, not kept because its folds' held-out error fell by less than shapes.MIN_GAIN) kept after
+    """Closed loops (every recording scored by the observer): is ``ref`` (family_table.refine_family's best table for a
+    family of ``cur``, not kept because its folds' held-out error fell by less than family_table.MIN_GAIN) kept after
     all? Yes where the folds still gain (its held-out error below the formula's), the continuous replay of the
     recorded voltage (model.replay_view: neither model was fitted on it) costs less by more than its noise
     (sqrt(2 n)) and by at least REPLAY_TABLE_GAIN of the formula model's cost, and the observer residual's cost

@@ -12,7 +12,7 @@ What separates them physically is what the torque multiplies: the current, the d
 nothing. So the rivals are compared with their *shape left free*: each family's own regularized lookup table
 in phi (``shapes.family_term``: TorqueConstantMap, AngleFrictionMap, AngleTorqueMap) is fitted on top of the
 current model (calibrated nominal parameters refitted with it, roughness chosen by cross-validation) and
-scored by its held-out angle error over the diagnosis's two folds (``shapes.heldout_error``). A torque
+scored by its held-out angle error over the diagnosis's two folds (``penalized.heldout_error``). A torque
 proportional to the current cannot be made by a friction table, nor an angle-only torque by a current table,
 whatever shape the tables take; only the physics left in the data decides. The family whose table predicts
 the held-out data best is named; airflow and spring asymmetry share one table (both are functions of the
@@ -28,6 +28,7 @@ import numpy as np
 
 from . import fit as F
 from . import shapes as S
+from . import penalized as P
 from .candidates import CANDIDATES
 from .model import Data
 
@@ -94,12 +95,12 @@ def table_heldout(cur: F.FitResult, cid: str, data: Data, tables: dict | None = 
     table is stored there as ``tables[cid] = (grid, values)``."""
     term = S.family_term(cid, cur.spec.base, data)
     spec_m = cur.spec.with_candidate(term.candidate())
-    pb = S.Problem.make(spec_m, np.concatenate([cur.x, np.zeros(term.n_coef)]), ("nominal", term.id), [term], data)
-    pf = S.fit_penalized(pb, data, iters=GN_ITER)
+    pb = P.Problem.make(spec_m, np.concatenate([cur.x, np.zeros(term.n_coef)]), ("nominal", term.id), [term], data)
+    pf = P.fit_penalized(pb, data, iters=GN_ITER)
     if tables is not None:
         vals = spec_m.values(pf.fit.x)
         tables[cid] = (np.asarray(term.grid), np.array([vals[f"{term.id}.c{k}"] for k in range(term.n_coef)]))
-    return S.heldout_error(dataclasses.replace(pf.problem, x=pf.fit.x), data, pf.lams, pf.jac)
+    return P.heldout_error(dataclasses.replace(pf.problem, x=pf.fit.x), data, pf.lams, pf.jac)
 
 
 ANGLE_ONLY = ("airflow_torque", "spring_asymmetry")

@@ -18,7 +18,7 @@ import numpy as np
 
 from . import fit as F
 from .model import Data, Spec, simulate
-from .shapes import Problem, fit_penalized, heldout_error
+from .penalized import Problem, fit_penalized, heldout_error
 from .unmodelled import (GN_ITER, PERIOD_AGREE, PERIODS_DEG, PROBE_R2, Generic, _rms_deg, periodic_term)
 
 SERIES_ID = "unmodelled_periodic"
@@ -158,8 +158,8 @@ def fit_series(nominal: F.FitResult, data: Data, period_deg: float, parts: tuple
                start: dict | None = None, log=print, period_free: bool = True, iters: int = GN_ITER,
                heldout: bool = True, grown_from: Series | None = None) -> Series | None:
     """The calibrated nominal model plus a Fourier series in angle (:func:`series_candidate`), nominal
-    parameters, period and coefficients fitted together by output error (shapes.fit_penalized: Gauss-Newton
-    with the nominal parameters' pull to the nameplate), and its held-out error (shapes.heldout_error, the
+    parameters, period and coefficients fitted together by output error (penalized.fit_penalized: Gauss-Newton
+    with the nominal parameters' pull to the nameplate), and its held-out error (penalized.heldout_error, the
     folds of the generic tables'; skipped, inf, without ``heldout``). None when the model cannot be simulated.
     ``grown_from``: the series whose coefficients ``start`` carries (more harmonics, a multiple or a fraction
     of its period); the fit then starts from that series' nominal parameters too, as they were fitted
@@ -341,7 +341,7 @@ def _coefficients(s: Series) -> dict:
 
 
 def heldout_period_held(s: Series, data: Data) -> float:
-    """The series' held-out error (shapes.heldout_error) with its fitted period held: the folds' one
+    """The series' held-out error (penalized.heldout_error) with its fitted period held: the folds' one
     Gauss-Newton step moves the coefficients and the nominal parameters only. Output error is steep in the
     period over several cycles, and a step in it learned on one fold's angles throws the other fold far off
     (a 6-harmonic series of the doubled period, RSS 1.65e3 against 1.51e5 at the half period, scored 1.2e5
@@ -454,35 +454,35 @@ def regrown(s: Series, nominal: F.FitResult, data: Data, log=print) -> Series:
 POLISH_ITER = 30          # Levenberg-Marquardt iterations at most of the kept series' polish (stops at a gain < 0.5 %)
 POLISH_DAMPING = (0.1, 1e-4, 4.0)   # the polish's damping: start, floor, factor (up on a failed step, down after one)
 POLISH_TRIES = 8          # damped steps tried per Jacobian before a finer finite-difference step (then stop)
-POLISH_FD_FINER = (5.0, 25.0)   # the finer steps tried in turn: shapes.FD_STEP / these
+POLISH_FD_FINER = (5.0, 25.0)   # the finer steps tried in turn: penalized.FD_STEP / these
 POLISH_STOP = 0.005       # the polish stops after POLISH_SLOW iterations in a row that lower the objective by less
 POLISH_SLOW = 3           # than this share (one such step follows a raised damping and is no plateau)
 
 
 def levenberg(pb: Problem, residual, jacobian):
-    """Levenberg-Marquardt on ``pb`` (shapes.Problem: x, free parameters, its prior) from pb.x, as
+    """Levenberg-Marquardt on ``pb`` (penalized.Problem: x, free parameters, its prior) from pb.x, as
     :func:`polish` describes: ``residual(x)`` -> residual vector, ``jacobian(pb, r, fd_step)`` -> Jacobian over
     pb.free. Returns (pb at the last accepted x, its residual, the last Jacobian or None, accepted iterations,
     objective at the start, objective at the end)."""
-    from . import shapes as SH
-    pb = dataclasses.replace(pb, x=SH._clip(pb, pb.x.copy()))
+    from . import penalized as P
+    pb = dataclasses.replace(pb, x=P._clip(pb, pb.x.copy()))
     r = residual(pb.x)
-    obj_start = obj = SH._objective(pb, r, pb.x[pb.free], [])
+    obj_start = obj = P._objective(pb, r, pb.x[pb.free], [])
     lam, floor, factor = POLISH_DAMPING
-    steps, J, it = [SH.FD_STEP] + [SH.FD_STEP / f for f in POLISH_FD_FINER], None, 0
+    steps, J, it = [P.FD_STEP] + [P.FD_STEP / f for f in POLISH_FD_FINER], None, 0
     fd, small = steps.pop(0), 0
     while it < POLISH_ITER:
         J = jacobian(pb, r, fd)
-        A, g, _ = SH._gram(J, r)
+        A, g, _ = P._gram(J, r)
         theta = pb.x[pb.free]
         step = None
         for _ in range(POLISH_TRIES):
-            d = SH._solve_gram(A, g, pb, [], damping=lam)
+            d = P._solve_gram(A, g, pb, [], damping=lam)
             xn = pb.x.copy()
             xn[pb.free] = theta + d
-            xn = SH._clip(pb, xn)
+            xn = P._clip(pb, xn)
             rn = residual(xn)
-            objn = SH._objective(pb, rn, xn[pb.free], [])
+            objn = P._objective(pb, rn, xn[pb.free], [])
             if objn < obj:
                 step = (xn, rn, objn)
                 break
@@ -507,21 +507,21 @@ def polish(s: Series, data: Data, log=print) -> Series:
     """The kept series fitted on to convergence: nominal parameters, period (free) and coefficients by
     Levenberg-Marquardt with an adaptive damping (divided by its factor after a step that lowers the objective,
     multiplied by it until one does), at most POLISH_ITER iterations (fewer after POLISH_SLOW slow ones in a
-    row), from ``s``; the Jacobian by forward differences at shapes.FD_STEP, at the finer steps of
+    row), from ``s``; the Jacobian by forward differences at penalized.FD_STEP, at the finer steps of
     POLISH_FD_FINER in turn when no damping lowers the objective.
     Returns the polished series when it lowers the objective (the same model and parameters, at a better
     optimum: no held-out test; the folds' one Gauss-Newton step from the polished optimum scored it worse on
     detent_torque 3B open s28, 302 -> 366, where the held-out recording went from 15.2x to 11.0x), else ``s``.
     Its ``heldout`` stays ``s``'s: the search compared the series and the tables on it.
 
-    Why (round 29, d29outside): the search's fits (shapes.fit_penalized: GN_ITER steps from the fixed ladder
+    Why (round 29, d29outside): the search's fits (penalized.fit_penalized: GN_ITER steps from the fixed ladder
     full, half, damped 0.1, damped 1) leave the series far from its optimum. On open-loop detent truths the
     full and half Gauss-Newton steps doubled the objective at every iteration, the damped 0.1 step gained 5-7 %,
     and the fit stopped at 6-23x the noise on its own training recording: detent_torque 3B open s36 (a sawtooth of
     13.42 deg) kept 13.23 deg, RSS 2.2e5, training 6.1x; the adaptive damping reached 1e-4 in ten iterations,
     RSS 1.0e4, training 1.26x, period 13.41 deg, the static torque within 0.5 mN m of the truth's over the
     stroke."""
-    from . import shapes as SH
+    from . import penalized as P
     base_spec = Spec(s.fit.spec.base, (), s.fit.spec.nominal)
     n_nom = len(base_spec.params)
     spec = base_spec.with_candidate(series_candidate(base_spec.base, s.component.params.period_rad, s.parts,
@@ -529,8 +529,8 @@ def polish(s: Series, data: Data, log=print) -> Series:
     x0 = np.concatenate([np.asarray(s.fit.x, float)[:n_nom], np.zeros(len(spec.params) - n_nom)])
     try:
         pb = Problem.make(spec, x0, ("nominal", SERIES_ID))
-        pb, r, J, it, obj_start, obj = levenberg(pb, lambda x: SH._residual(spec, data, x),
-                                                 lambda pb, r, fd: SH.jacobian(pb, data, r, fd))
+        pb, r, J, it, obj_start, obj = levenberg(pb, lambda x: P._residual(spec, data, x),
+                                                 lambda pb, r, fd: P.jacobian(pb, data, r, fd))
         if J is None or not obj < obj_start:
             return s
         Jfull = np.zeros((r.size, len(pb.x)))

@@ -12,7 +12,8 @@ import numpy as np
 from ..components import effects_maps as mx
 from . import fit as F
 from .model import Data
-from .shapes import MIN_GAIN, Problem, heldout_error, plot_table, refine_family
+from .family_table import MIN_GAIN, plot_table, refine_family
+from .penalized import Problem, heldout_error
 
 # A periodic outside description that removes the residual's periodic structure (unmodelled.removes_period) replaces
 # the catalogue model only while it predicts the held-out folds within this factor of the catalogue model's error: a

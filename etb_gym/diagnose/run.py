@@ -341,7 +341,7 @@ def polish_replay(fr: F.FitResult, data: Data, note: dict | None = None, ref=Non
     sensor_delay@2 3B seed 13 (a moving-average reading) the halves gained 98 % and 82 % and the observer's cost
     rose 8.6 % (sqrt(2 n) allows 0.6 %); refused, the twin missed the held-out recording by 12.5x the noise,
     kept 3.55x (round 16). A model with a table (``ref``: its kept
-    shapes.Refinement) is refitted with the table's penalty (:func:`polish_shaped`); other models with more than
+    family_table.Refinement) is refitted with the table's penalty (:func:`polish_shaped`); other models with more than
     POLISH_MAX_PARAMS parameters keep their fit.
     Where one half's refit gains on the other half but not both, the refit on the whole replay is still kept
     when both residuals agree
@@ -412,7 +412,7 @@ SHAPED_NFEV = 30      # evaluations of the shaped model's polish (Jacobians by f
 
 
 def _shaping(fr: F.FitResult, shaped):
-    """The kept refinement (shapes.Refinement) whose table model ``fr`` is, with its penalized problem; else None."""
+    """The kept refinement (family_table.Refinement) whose table model ``fr`` is, with its penalized problem; else None."""
     refs = [r for r in (shaped.refinements if shaped is not None else ()) if r.kept and r.problem is not None]
     if not refs or refs[-1].fit.spec.params != fr.spec.params:
         return None
@@ -420,10 +420,10 @@ def _shaping(fr: F.FitResult, shaped):
 
 
 def polish_shaped(fr: F.FitResult, ref, data: Data, masks=None) -> F.FitResult:
-    """A model with a table (``ref``: shapes.Refinement) refitted on the continuous replay: the table's knots
+    """A model with a table (``ref``: family_table.Refinement) refitted on the continuous replay: the table's knots
     and the nominal parameters with the table's own penalty (roughness at the weight its cross-validation chose,
     the anchored and held knots, the nameplate prior) as extra residual rows, and the family's formula
-    parameters too unless a table holds knots at targets made from the formula (shapes.hold_rows).
+    parameters too unless a table holds knots at targets made from the formula (penalized.hold_rows).
 
     Why: the table's penalized fit runs a few Gauss-Newton steps (its Jacobian at a coarser step) and takes the
     restart view's table where that scores better on the restart view's folds, and the formula was fitted before

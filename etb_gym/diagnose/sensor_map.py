@@ -294,13 +294,14 @@ def refine_sensor(cur: F.FitResult, family_id: str, data: Data, log=print) -> Se
 
 def replaces_later(steps: list, final: F.FitResult, data: Data, log=print) -> SensorRefinement | None:
     """When the first accepted effect is a sensing family and later effects were added: its map learned on the
-    model of the first step alone, kept if that model predicts held-out data (shapes.heldout_error) as well as
-    the model with every step (within shapes.MIN_GAIN), else None. Why: the offset-and-gain formula cannot bend;
+    model of the first step alone, kept if that model predicts held-out data (penalized.heldout_error) as well as
+    the model with every step (within family_table.MIN_GAIN), else None. Why: the offset-and-gain formula cannot bend;
     a reading curve's bow (a few tenths of a degree over the stroke) is then what the next round sees, and a
     torque family whose effect grows with the angle (a flux loss, an open stop's contact) absorbs part of it
     (measured: sensor_offset_gain@1 seed 18, 3B and random nameplates, named with shaft_flux_loss /
     end_stop_compliance, twin 2.4x / 3.3x the noise, no better than the nominal model's)."""
-    from .shapes import MIN_GAIN as SHAPE_GAIN, Problem, heldout_error
+    from .family_table import MIN_GAIN as SHAPE_GAIN
+    from .penalized import Problem, heldout_error
     if len(steps) < 2 or steps[0].id not in SENSING_MAPS:
         return None
     sref = refine_sensor(steps[0].fit, steps[0].id, data, log)

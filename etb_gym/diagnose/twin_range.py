@@ -3,7 +3,7 @@
 A twin is fitted on the angles its recordings went through. Between the closed and the open stop the user may
 drive it anywhere; beyond the visited angles each of its angle-dependent parts continues in its own way: a
 family's formula by its law (a spring asymmetry's rate, an airflow polynomial), a learned table held at its edge
-value (shapes.hold_rows) or continued along its slope (closed_twin.continue_tables), a Fourier series in angle by
+value (penalized.hold_rows) or continued along its slope (closed_twin.continue_tables), a Fourier series in angle by
 its period, the generic tables of the unmodelled torque at 0 (the nominal model). None of this is evidence.
 
 Measured (docs/diagnosis-history.md, round 24 h24opentwin): spring_asymmetry@2 random open seed 26 visited 5.8-87.4

@@ -1,7 +1,7 @@
 """Physics outside the catalogue: the missing torque (or voltage) as a function of the state (docs/diagnosis-shapes.md).
 
 When the candidates leave a significant residual, the calibrated nominal model is extended by a generic set of
-regularized tables (``etb_gym.components.effects_maps``) and fitted by output error (shapes.fit_penalized,
+regularized tables (``etb_gym.components.effects_maps``) and fitted by output error (penalized.fit_penalized,
 roughness weights per table by cross-validation over the time-block folds):
 
     T(phi)         torque over angle, fine knots over the plant's stroke (resolves a periodic detent torque)
@@ -17,7 +17,7 @@ ids ``unmodelled_torque`` / ``unmodelled_voltage`` with the words "outside the c
 A periodic angle table is then kept in the twin as a Fourier series (:mod:`.outside_series`).
 
 Decision (:func:`compare`): the generic model replaces the catalogue's explanation when its held-out error
-(shapes.heldout_error, same folds and refit rule as the catalogue model's) is lower by GAIN_OUT, or when its
+(penalized.heldout_error, same folds and refit rule as the catalogue model's) is lower by GAIN_OUT, or when its
 angle table is periodic (no catalogue family acts periodically in angle) and at least as good; then no catalogue
 effect is reported as the explanation, unless a catalogue family of the dominant table does the same job with its
 own table (:func:`catalogue_alternative`). In a closed loop (``persistent``) a table also matters when removing it
@@ -33,7 +33,8 @@ import numpy as np
 from ..components import effects_maps as mx
 from . import fit as F
 from .model import Data, Spec, angle_residuals_deg, simulate
-from .shapes import MapTerm, Problem, angle_grid, current_grid, fit_penalized, heldout_error, speed_grid
+from .penalized import Problem, fit_penalized, heldout_error
+from .shapes import MapTerm, angle_grid, current_grid, speed_grid
 
 GAIN_OUT = 0.10          # held-out error the generic model must win over the catalogue's
 RMS_GAIN = 0.10          # ... and over the nominal model, as the catalogue effects must (explain.RMS_MIN_GAIN)
@@ -566,7 +567,7 @@ HELD_AT_NOISE = 4.0     # a held-out error (mean square, noise units) this low l
 @dataclasses.dataclass
 class FamilyAlternative:
     """A catalogue family that describes what the generic tables found: its formula fit, its refinement
-    (shapes.Refinement or None), the held-out error of formula + table and of the formula alone."""
+    (family_table.Refinement or None), the held-out error of formula + table and of the formula alone."""
 
     id: str
     formula: F.FitResult
@@ -582,9 +583,9 @@ class FamilyAlternative:
 
 def _try_family(cur: F.FitResult, cid: str, data: Data, log) -> FamilyAlternative | None:
     """``cid``'s formula added to ``cur`` and fitted (coarse scan of its main parameter first), then refined by
-    its table (shapes.refine_family); None when the model cannot be simulated."""
+    its table (family_table.refine_family); None when the model cannot be simulated."""
     from .candidates import CANDIDATES
-    from .shapes import refine_family
+    from .family_table import refine_family
     c = CANDIDATES[cid]
     spec = cur.spec.with_candidate(c)
     x0 = np.concatenate([cur.x, np.zeros(len(spec.params) - len(cur.x))])
