@@ -478,6 +478,16 @@ class ETBEnv(gym.Env):
     def model_name(self) -> str:
         return f"ETB-{self.plant.model}" if self.plant.model else "custom plant"
 
+    def __setstate__(self, state):
+        """Unpickled arrays come back writable: the parameter vectors are handed to the compiled stepper read-only
+        again, the one argument type it is compiled for (plant.read_only; a writable P compiled the whole
+        right-hand side a second time in every process that unpickled an env)."""
+        self.__dict__.update(state)
+        for name in ("_P", "_P_nominal"):
+            a = state.get(name)
+            if isinstance(a, np.ndarray):
+                a.setflags(write=False)
+
     def close(self):
         if self._renderer is not None:
             self._renderer.close()

@@ -162,6 +162,13 @@ class ETBVectorEnv(VectorEnv):
                            self._state_scale, kn.clip_obs, kn.obs_low, kn.obs_high, self._info_cols)
         ensure_thread_pool()      # before numba's pool starts, or it spins (etb_gym/threadpool.py)
 
+    def __setstate__(self, state):
+        """The read-only view of P is a view again: pickling stores it as a copy, and a reset writing a drawn P
+        into ``_P`` then evaluated the stepper with the old one."""
+        self.__dict__.update(state)
+        if "_P" in state:
+            self._P_read_only = read_only(self._P)
+
     # ------------------------------------------------------------------------------ per-row resets
     def _reset_rows(self, rows, seeds, options):
         env = self.env

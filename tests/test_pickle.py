@@ -44,6 +44,21 @@ def test_env_pickled_mid_episode_steps_bit_identically(env_id):
     o1, _ = e.reset(seed=9)
     o2, _ = f.reset(seed=9)
     assert np.array_equal(o1, o2)
+    u = f.unwrapped                       # the stepper's parameter vectors read-only again: one compiled type
+    assert not u._P.flags.writeable and not u._P_nominal.flags.writeable
+
+
+def test_vector_env_pickled_keeps_its_read_only_view_of_the_parameters():
+    """The vector env's read-only P is a view of the P a reset writes a drawn episode into: still a view after
+    pickling (it came back a copy, and a randomized reset then evaluated the stepper with the old P)."""
+    e = gym.make_vec("ETB-3B-v0", num_envs=2, randomize=True)
+    e.reset(seed=0)
+    f = pickle.loads(pickle.dumps(e))
+    f.reset(seed=5)
+    assert np.shares_memory(f._P, f._P_read_only) and not f._P_read_only.flags.writeable
+    assert np.array_equal(f._P_read_only, f._P)
+    e.close()
+    f.close()
 
 
 # ------------------------------------------------------------------------------ env option and action checks
