@@ -56,8 +56,8 @@ def test_a_larger_exponent_keeps_the_stiction_flat_at_creeping_speeds():
         fx.StribeckFriction(exponent=0.0)
 
 
-def test_the_candidate_fits_the_exponent_inside_the_literatures_range_from_the_exponential():
-    p = {q.name: q for q in CANDIDATES["stribeck_friction"].fit}
-    e = p["exponent"]
-    assert (e.lower, e.init, e.upper) == (0.5, 1.0, 2.0)
-    assert list(p)[:2] == ["stiction_Nm", "stribeck_velocity_rad_s"]    # multi_start's second parameter stays w_s
+def test_the_candidate_holds_the_exponent_at_the_papers_square_root():
+    """The candidate fits the level and the Stribeck velocity; the exponent, a field of the component (a user's
+    plant file may set it), stays 0.5 in the diagnosis (fitted, the blind twins moved both ways: candidates.py)."""
+    assert [q.name for q in CANDIDATES["stribeck_friction"].fit] == ["stiction_Nm", "stribeck_velocity_rad_s"]
+    assert fx.StribeckFriction().params.exponent == 0.5
