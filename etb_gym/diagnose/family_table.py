@@ -1,6 +1,6 @@
 """A named family's formula refined by a learned table, kept or not (docs/diagnosis-shapes.md).
 
-:func:`refine_family` builds the family's map term (:func:`.shapes.family_term`), fits it with the calibrated
+:func:`refine_family` builds the family's map terms (:func:`.shapes.family_terms`), fits each with the calibrated
 nominal parameters by the penalized Gauss-Newton (:mod:`.penalized`), and compares the held-out error of formula
 and formula + table over the diagnosis's two folds. A refined map is kept (in the twin and the exported plant
 file, where it sits beside the family's formula as a correction) only when its held-out error is lower than the
