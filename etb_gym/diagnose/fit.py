@@ -123,8 +123,9 @@ def fold_block_s(rd, block_s: float = FOLD_BLOCK_S) -> float:
     cover = fold_cover(rd, block_s)
     if cover >= FOLD_COVER_MIN:
         return block_s
-    best = max(FOLD_BLOCKS_SHORT_S, key=lambda b: fold_cover(rd, b))      # ties: the longest (listed first)
-    return best if fold_cover(rd, best) > cover else block_s             # no shorter block sees more: as before
+    covers = {b: fold_cover(rd, b) for b in FOLD_BLOCKS_SHORT_S}
+    best = max(covers, key=covers.get)                                    # ties: the longest (listed first)
+    return best if covers[best] > cover else block_s                      # no shorter block sees more: as before
 
 
 FOLD_COVER_MIN = 0.5          # a replay's folds must each see the plate move over this share of the angles it moves over

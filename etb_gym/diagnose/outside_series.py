@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from . import fit as F
+from . import penalized as PN
 from .model import Data, Spec, simulate
 from .penalized import Problem, fit_penalized, heldout_error
 from .unmodelled import (GN_ITER, PERIOD_AGREE, PERIODS_DEG, PROBE_R2, Generic, _rms_deg, periodic_term)
@@ -464,25 +465,24 @@ def levenberg(pb: Problem, residual, jacobian):
     :func:`polish` describes: ``residual(x)`` -> residual vector, ``jacobian(pb, r, fd_step)`` -> Jacobian over
     pb.free. Returns (pb at the last accepted x, its residual, the last Jacobian or None, accepted iterations,
     objective at the start, objective at the end)."""
-    from . import penalized as P
-    pb = dataclasses.replace(pb, x=P._clip(pb, pb.x.copy()))
+    pb = dataclasses.replace(pb, x=PN._clip(pb, pb.x.copy()))
     r = residual(pb.x)
-    obj_start = obj = P._objective(pb, r, pb.x[pb.free], [])
+    obj_start = obj = PN._objective(pb, r, pb.x[pb.free], [])
     lam, floor, factor = POLISH_DAMPING
-    steps, J, it = [P.FD_STEP] + [P.FD_STEP / f for f in POLISH_FD_FINER], None, 0
+    steps, J, it = [PN.FD_STEP] + [PN.FD_STEP / f for f in POLISH_FD_FINER], None, 0
     fd, small = steps.pop(0), 0
     while it < POLISH_ITER:
         J = jacobian(pb, r, fd)
-        A, g, _ = P._gram(J, r)
+        A, g, _ = PN._gram(J, r)
         theta = pb.x[pb.free]
         step = None
         for _ in range(POLISH_TRIES):
-            d = P._solve_gram(A, g, pb, [], damping=lam)
+            d = PN._solve_gram(A, g, pb, [], damping=lam)
             xn = pb.x.copy()
             xn[pb.free] = theta + d
-            xn = P._clip(pb, xn)
+            xn = PN._clip(pb, xn)
             rn = residual(xn)
-            objn = P._objective(pb, rn, xn[pb.free], [])
+            objn = PN._objective(pb, rn, xn[pb.free], [])
             if objn < obj:
                 step = (xn, rn, objn)
                 break
@@ -521,7 +521,6 @@ def polish(s: Series, data: Data, log=print) -> Series:
     13.42 deg) kept 13.23 deg, RSS 2.2e5, training 6.1x; the adaptive damping reached 1e-4 in ten iterations,
     RSS 1.0e4, training 1.26x, period 13.41 deg, the static torque within 0.5 mN m of the truth's over the
     stroke."""
-    from . import penalized as P
     base_spec = Spec(s.fit.spec.base, (), s.fit.spec.nominal)
     n_nom = len(base_spec.params)
     spec = base_spec.with_candidate(series_candidate(base_spec.base, s.component.params.period_rad, s.parts,
@@ -529,8 +528,8 @@ def polish(s: Series, data: Data, log=print) -> Series:
     x0 = np.concatenate([np.asarray(s.fit.x, float)[:n_nom], np.zeros(len(spec.params) - n_nom)])
     try:
         pb = Problem.make(spec, x0, ("nominal", SERIES_ID))
-        pb, r, J, it, obj_start, obj = levenberg(pb, lambda x: P._residual(spec, data, x),
-                                                 lambda pb, r, fd: P.jacobian(pb, data, r, fd))
+        pb, r, J, it, obj_start, obj = levenberg(pb, lambda x: PN._residual(spec, data, x),
+                                                 lambda pb, r, fd: PN.jacobian(pb, data, r, fd))
         if J is None or not obj < obj_start:
             return s
         Jfull = np.zeros((r.size, len(pb.x)))
