@@ -9,7 +9,7 @@ time-optimal servo), the voltage-mode PID and sliding mode they replaced, design
 Each controller module registers its names (``register_controller``) when imported; this package imports
 them all, and nothing imports back.
 """
-from . import cascade, pid, smc  # noqa: F401  (register "pid", "smc", "ptos", "pid-plain", "pid-nocomp", "smc-plain")
+from . import cascade, pid, ptos, smc  # noqa: F401  (register "pid", "smc", "ptos", "pid-plain", "pid-nocomp", "smc-plain")
 from .base import (CONTROLLERS, BaseController, Controller, VelocityEstimator, controller_prefixes,
                    make_controller, register_controller, register_controller_prefix)
 

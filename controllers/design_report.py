@@ -24,7 +24,7 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     if a.model.upper() not in MODELS:
         p.error(f"unknown model {a.model!r}: valid are {', '.join(MODELS)}")
-    from .cascade import PTOSController
+    from .ptos import PTOSController
     from .pid import PIDController
     from .smc import SlidingModeController
 

@@ -75,7 +75,8 @@ class Relay:
 
 
 def controller(kind: str, file_plant, dt):
-    from etb_gym.controllers.cascade import CascadePID, CascadeSMC, PTOSController
+    from etb_gym.controllers.cascade import CascadePID, CascadeSMC
+    from etb_gym.controllers.ptos import PTOSController
     from etb_gym.controllers.pid import PIDController
     from etb_gym.controllers.smc import SlidingModeController
     m = file_plant
