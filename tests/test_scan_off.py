@@ -26,8 +26,9 @@ def _fun(best_at):
 
 
 def test_the_scan_skips_the_off_point():
-    """A scan whose best point is the candidate switched off (the current model itself: a play at 0 that the
-    local fit cannot leave, its first order a preload the calibration carries) picks the best of the others."""
+    """A scan point at the candidate switched off (the current model itself: a play at 0 that the
+    local fit cannot leave, its first order a preload the calibration carries) is left to fit(), which fits from
+    it and from the best of the others when it wins."""
     lo, hi = np.array([-4.0 / 3.0]), np.array([56.0 / 3.0])
     x0 = np.zeros(1)
     fun = _fun(lo[0])

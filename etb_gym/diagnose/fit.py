@@ -263,9 +263,7 @@ def scan_start(fun, x0: np.ndarray, r0: np.ndarray, index: int, lo: np.ndarray, 
     PROFILE_GAIN): a candidate whose first-order effect the
     fitted parameters already carry (a play: a preload shift) is otherwise only seen to make the fit worse.
     ``off``: the parameter's normalized value where the candidate's effect is switched off (Candidate.off); a
-    scan point there is not tried: it is the current model itself, and a local fit started there stays (measured:
-    backlash@2 3B s34, open loop, play 0 at the bound won the scan at the current model's RSS 16109 and the
-    screening stayed there, dBIC +13; from play 0.002-0.008 the fit reached 7510, dBIC -1114).
+    scan point there is left out (it is the current model itself; :func:`fit` decides between it and the rest).
     Returns (x, r, number of evaluations)."""
     best_x, best_r, best = x0, r0, float(r0 @ r0)
     offsets = scan_offsets(lo[index] - x0[index] + 1e-9, hi[index] - x0[index] - 1e-9)
@@ -440,10 +438,23 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
         return FitResult(spec, x0, float(r0 @ r0), r0.size, None, 1, integrated_time(r0))
     n_scan = 0
     x_start = x0
+    alt = None                      # the scan's best point other than the candidate switched off, when that won
     if scan is not None and 0 <= scan < len(x0):
         profile = range(min(len(spec.nominal), scan)) if profile_scan else ()
         last = spec.candidates[-1] if spec.candidates else None
-        xs, rs, n_scan = scan_start(fun, x0, r0, scan, lo, hi, profile, diff_step, off_value(spec, scan))
+        off = off_value(spec, scan)
+        xs, rs, n_scan = scan_start(fun, x0, r0, scan, lo, hi, profile, diff_step, off)
+        if off is not None and lo[scan] <= off <= hi[scan] and off != x0[scan]:
+            # the candidate switched off is the current model: where it beats every other scan point a local fit
+            # from it alone may not leave it (a play at 0: the first order is a preload the calibration carries)
+            xo = x0.copy()
+            xo[scan] = min(max(off, lo[scan] + 1e-9), hi[scan] - 1e-9)
+            ro = fun(xo)
+            n_scan += 1
+            if fun.failure is None and float(ro @ ro) < float(rs @ rs):
+                alt = (xs, rs)
+                xs, rs = xo, ro
+        fun.failure = None
         if last is not None and last.coscaled and scan == len(spec.params) - len(last.fit):
             xc, rc, n_c = coscale_start(fun, spec, x0, r0, scan, lo, hi)
             n_scan += n_c
@@ -452,6 +463,11 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
         x0, r0 = xs, rs
     nfev = max_nfev or 30 * (len(x0) + 1)
     res = local_fit(fun, x0, lo, hi, diff_step, nfev)
+    if alt is not None:             # ... so the best of the other scan points is fitted too, and the better kept
+        res_alt = local_fit(fun, alt[0], lo, hi, diff_step, nfev)
+        n_scan += int(res_alt.nfev)
+        if res_alt.cost < res.cost:
+            res = res_alt
     last = spec.candidates[-1] if spec.candidates else None
     if (scan is not None and last is not None and last.starts and len(last.fit) >= 2
             and scan == len(spec.params) - len(last.fit) and not np.any(x_start[scan:])):
