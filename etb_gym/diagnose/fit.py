@@ -422,7 +422,10 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
     step (the test asks <= 1.1x), where the plain scan's twin passes. A free play in open loop needs it as in closed
     loop: on backlash@2 3B seed 6 (an asymmetric play, open loop) the plain scan stopped at play 0.0022 rad (dBIC
     -40, held-out +1.6 %: not accepted), the profiled one at 0.0111 rad (dBIC -630, held-out +25.6 %;
-    docs/diagnosis-history.md round 14)."""
+    docs/diagnosis-history.md round 14). Where the scan's best point is the candidate switched off (its
+    Candidate.off value: the current model), the local fit runs from it and from the scan's best other point and
+    keeps the better (scan_start's ``off``; backlash@2 3B s34 open: play 0 won the scan and the fit stayed, dBIC
+    +13; from the other point -1114; docs/diagnosis-rounds/round30-h30backlash.md)."""
     if profile_scan is None:
         profile_scan = (any(rd.residual == "observer" for rd in data.recs)
                         or bool(spec.candidates and spec.candidates[-1].profiled))
