@@ -109,6 +109,18 @@ def _continued(total: np.ndarray, prof: np.ndarray, grid: np.ndarray, seen: np.n
     return out
 
 
+def _toward_edge(new: np.ndarray, old: np.ndarray, total: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Knots beyond the data's edge (``seen``'s first / last): ``new``'s step from the edge knot's value where it
+    is smaller than ``old``'s and goes the same way, else ``old``'s value: the smaller of the two extrapolations
+    (as :func:`_continued` takes the smaller of the slope's and the formula's)."""
+    out = new.copy()
+    for e, ks in ((seen[-1], range(seen[-1] + 1, total.size)), (seen[0], range(seen[0]))):
+        for k in ks:
+            dn, do = new[k] - total[e], old[k] - total[e]
+            out[k] = total[e] + dn if dn * do > 0 and abs(dn) < abs(do) else old[k]
+    return out
+
+
 def reached_knots(grid: np.ndarray, visit_s: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
     """The knots of an angle table (``grid``, increasing) that the recordings identify: hat-weighted time near
     the knot (``visit_s``) at least shapes.VISIT_MIN_S, and the recorded angles (``angles_rad``) reaching past the
@@ -160,13 +172,18 @@ def continue_tables(final: F.FitResult, shaped, data: Data, note: dict | None = 
             if prof is None or vis is None:
                 continue
             grid, vis = np.asarray(term.grid, float), np.asarray(vis[:term.grid.size])
-            seen = reached_knots(grid, vis, angles) if by_edge else np.flatnonzero(vis >= VISIT_MIN_S)
+            visited = np.flatnonzero(vis >= VISIT_MIN_S)
+            seen = reached_knots(grid, vis, angles) if by_edge else visited
             if seen.size < 2:
                 continue
             ps = [final.spec.params[k][1] for k in idx]
             table = np.array([p.init + p.scale * x[k] for p, k in zip(ps, idx)])
             total = prof + table
-            new = _continued(total, prof, grid, seen, float(final.spec.base.limp_home_rad))
+            lh = float(final.spec.base.limp_home_rad)
+            new = _continued(total, prof, grid, seen, lh)
+            if by_edge:     # no further from the data's edge than the visited knots' rule (round 23) goes
+                new = _toward_edge(new, _continued(total, prof, grid, visited, lh) if visited.size >= 2 else total,
+                                   total, seen)
             if np.allclose(new, total, rtol=0.0, atol=1e-12):
                 continue
             for p, k, v in zip(ps, idx, new - prof):
