@@ -51,7 +51,7 @@ def test_a_knot_the_data_approach_to_less_than_half_its_interval_is_not_reached(
     assert 4 not in reached_knots(GRID, visit, angles)
 
 
-def _case(monkeypatch, replay_cost):
+def _case(monkeypatch, replay_cost, significant=None):
     """continue_tables on stand-ins: one table over GRID (one parameter per knot, init 0, scale 1), visited
     (hat-weighted time) up to 80 deg and at 90 deg, the recorded angles 0..83 deg; the formula steepens."""
     from types import SimpleNamespace as NS
@@ -77,7 +77,7 @@ def _case(monkeypatch, replay_cost):
     monkeypatch.setattr(CT, "_replay_cost", lambda fr, rv: (replay_cost(fr.x), 100))
     data = NS(recs=[NS(residual="observer")])
     note = {}
-    out = CT.continue_tables(final, NS(refinements=[ref]), data, note)
+    out = CT.continue_tables(final, NS(refinements=[ref]), data, note, significant)
     return final, out, note
 
 
@@ -91,3 +91,10 @@ def test_where_the_replay_refuses_the_datas_reach_the_visited_knots_rule_stands(
     final, out, note = _case(monkeypatch, lambda x: 100.0 if x[9] < -0.04 else 1e4)
     assert out is final                              # nothing beyond the visited knots (90 deg has visit time)
     assert not note["beyond_visited"]["kept"] and note["beyond_visited"]["tables"][0]["knots_by"] == "data edge"
+
+
+def test_the_datas_reach_is_refused_where_it_would_leave_a_significant_mismatch(monkeypatch):
+    final, out, note = _case(monkeypatch, lambda x: 100.0, significant=lambda fr: fr.x[9] > -0.04)
+    assert out is final and note["beyond_visited"]["verdict_guard"].startswith("the edit would leave")
+    final, out, note = _case(monkeypatch, lambda x: 100.0, significant=lambda fr: False)
+    assert out is not final and note["beyond_visited"]["verdict_guard"] == "passed"
