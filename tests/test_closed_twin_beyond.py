@@ -37,3 +37,64 @@ def test_the_continuation_does_not_cross_limp_home():
     total[:3] = -0.006
     out = _continued(total, prof, GRID, np.arange(3, 10), math.radians(15.0))
     np.testing.assert_allclose(out[:3], [-0.008, -0.008, -0.008])   # 20 deg continued, held below 15 deg
+
+
+def test_a_knot_the_data_approach_to_less_than_half_its_interval_is_not_reached():
+    from etb_gym.diagnose.closed_twin import reached_knots
+    visit = np.full(GRID.size, 0.5)
+    visit[9] = 0.03                                   # 90 deg: hat-weighted time from the samples at 82-85 deg
+    angles = np.radians(np.linspace(6.0, 84.0, 500))
+    np.testing.assert_array_equal(reached_knots(GRID, visit, angles), np.arange(1, 9))   # nor 0 deg (data from 6)
+    angles = np.radians(np.linspace(0.0, 86.0, 500))  # past the middle of 80..90: the 90 deg knot is reached
+    np.testing.assert_array_equal(reached_knots(GRID, visit, angles), np.arange(10))
+    visit[4] = 0.0                                    # an interior knot without visit time is still not identified
+    assert 4 not in reached_knots(GRID, visit, angles)
+
+
+def _case(monkeypatch, replay_cost, significant=None):
+    """continue_tables on stand-ins: one table over GRID (one parameter per knot, init 0, scale 1), visited
+    (hat-weighted time) up to 80 deg and at 90 deg, the recorded angles 0..83 deg; the formula steepens."""
+    from types import SimpleNamespace as NS
+
+    from etb_gym.diagnose import closed_twin as CT
+    from etb_gym.diagnose import family_table, penalized, shapes
+    from etb_gym.diagnose.fit import FitResult
+    term = NS(id="f_map", grid=GRID, value_fields=("d",), cls=NS(grid_field="angle_rad"))
+    ps = [("f_map", NS(init=0.0, scale=1.0)) for _ in GRID]
+    spec = NS(params=ps, bounds=lambda: (np.full(GRID.size, -1.0), np.full(GRID.size, 1.0)),
+              base=NS(limp_home_rad=math.nan))
+    table = np.zeros(GRID.size)
+    table[9] = -0.05                                  # the 90 deg knot at a wild extrapolation
+    final = FitResult(spec, table, 0.0, 0, None, 0)
+    ref = NS(kept=True, term=term, family_id="f", fit=final)
+    visit = np.full(GRID.size, 0.5)
+    visit[9] = 0.03
+    monkeypatch.setattr(penalized, "formula_profile", lambda comp, t: -0.001 * np.arange(GRID.size) ** 2)
+    monkeypatch.setattr(family_table, "_formula_component", lambda fr, cid: object())
+    monkeypatch.setattr(shapes, "visit_time_s", lambda t, d: visit)
+    monkeypatch.setattr(shapes, "data_angles_rad", lambda d: np.radians(np.linspace(0.0, 83.0, 200)))
+    monkeypatch.setattr(CT, "replay_view", lambda d: d)
+    monkeypatch.setattr(CT, "_replay_cost", lambda fr, rv: (replay_cost(fr.x), 100))
+    data = NS(recs=[NS(residual="observer")])
+    note = {}
+    out = CT.continue_tables(final, NS(refinements=[ref]), data, note, significant)
+    return final, out, note
+
+
+def test_the_knot_beyond_the_datas_reach_is_continued_where_the_replay_allows(monkeypatch):
+    final, out, note = _case(monkeypatch, lambda x: 100.0)
+    np.testing.assert_allclose(out.x[9] - 0.081, -0.064 - 0.013)   # the total: 80 deg's + the 60-70 slope
+    assert note["beyond_visited"]["kept"] and note["beyond_visited"]["tables"][0]["knots_by"] == "data edge"
+
+
+def test_where_the_replay_refuses_the_datas_reach_the_visited_knots_rule_stands(monkeypatch):
+    final, out, note = _case(monkeypatch, lambda x: 100.0 if x[9] < -0.04 else 1e4)
+    assert out is final                              # nothing beyond the visited knots (90 deg has visit time)
+    assert not note["beyond_visited"]["kept"] and note["beyond_visited"]["tables"][0]["knots_by"] == "data edge"
+
+
+def test_the_datas_reach_is_refused_where_it_would_leave_a_significant_mismatch(monkeypatch):
+    final, out, note = _case(monkeypatch, lambda x: 100.0, significant=lambda fr: fr.x[9] > -0.04)
+    assert out is final and note["beyond_visited"]["verdict_guard"].startswith("the edit would leave")
+    final, out, note = _case(monkeypatch, lambda x: 100.0, significant=lambda fr: False)
+    assert out is not final and note["beyond_visited"]["verdict_guard"] == "passed"

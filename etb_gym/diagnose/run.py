@@ -610,7 +610,7 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
                 from .closed_twin import refit_weak    # closed loops: the directions the observer does not see
                 final = refit_weak(final, data, significant, replay_note)
                 from .closed_twin import continue_tables    # closed loops: a table beyond the visited angles
-                final = continue_tables(final, shaped, data, tables_note)
+                final = continue_tables(final, shaped, data, tables_note, significant)
             else:
                 final = nominal
             lap("polish")
