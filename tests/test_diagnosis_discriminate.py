@@ -131,7 +131,8 @@ def test_a_friction_family_is_named_when_the_outside_period_is_not_established(m
     established: unmodelled.period_established) stands in for a friction band in an open loop, where the current
     follows the direction of motion (angle_dependent_friction@1 random open s36 / s38: series of 49 / 71 deg,
     held-out 6.58 / 16.9 against 30.7 / 146 for the friction table). Without an established period it shows no
-    periodic torque, so the friction family whose torque opposes the motion is named (its RMS gain required)."""
+    periodic torque, so the friction family whose torque opposes the motion is named (its RMS gain required); in
+    open loops only (airflow_torque@1 3B closed s21 was named angle_dependent_friction so)."""
     from etb_gym.diagnose import unmodelled as U
     seen = []
 
@@ -141,6 +142,7 @@ def test_a_friction_family_is_named_when_the_outside_period_is_not_established(m
     monkeypatch.setattr(U, "_try_family", fake_try)
     monkeypatch.setattr(U, "_rms_deg", lambda spec, x, data: 1.0 if x is _Cur.x else rms_alt)
     monkeypatch.setattr(U, "period_established", lambda g, ps, data, log=None: seen.append(ps) or established)
+    monkeypatch.setattr(U, "open_loop", lambda data: True)
     ps = {"period_deg": 22.0, "significant": True}
     alt = U.catalogue_alternative(_stub_generic(["unmodelled_angle", "unmodelled_current"], 1.0, True), _Cur(),
                                   {"unmodelled_angle": ("airflow_torque", "angle_dependent_friction")}, None,
@@ -597,3 +599,17 @@ def test_a_refused_screening_leader_is_an_alternative_too(monkeypatch):
                                   resolves=lambda fr: False,
                                   screened=("angle_dependent_friction", "sensor_offset_gain"))
     assert tried == ["torque_constant_error", "angle_dependent_friction"] and alt.id == "angle_dependent_friction"
+
+
+def test_open_loop_is_true_for_replayed_recordings_only():
+    """unmodelled.open_loop: the friction-over-angle rule of round 30 (g30adf) holds in open loops only."""
+    import dataclasses
+
+    from diagnose_stubs import swing_data
+
+    from etb_gym.diagnose import unmodelled as U
+    data = swing_data(40.0, 20.0)
+    assert U.open_loop(data)
+    obs = dataclasses.replace(data, recs=[dataclasses.replace(rd, residual="observer") for rd in data.recs])
+    assert not U.open_loop(obs)
+    assert not U.open_loop(dataclasses.replace(data, recs=[]))
