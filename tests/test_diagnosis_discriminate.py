@@ -84,6 +84,7 @@ def test_a_catalogue_family_with_its_table_wins_over_generic_tables_of_its_kind(
 
     monkeypatch.setattr(U, "_try_family", fake_try)
     monkeypatch.setattr(U, "_rms_deg", lambda spec, x, data: 1.0 if x is _Cur.x else rms_alt)
+    monkeypatch.setattr(U, "period_established", lambda g, ps, data, log=None: True)
     fam = {"unmodelled_angle": ("airflow_torque", "angle_dependent_friction"), "unmodelled_voltage": ("supply_drop",)}
     alt = U.catalogue_alternative(_stub_generic(["unmodelled_angle", "unmodelled_voltage"], 1.0, periodic), _Cur(), fam,
                                   None, lambda fr: significant, log=lambda *a: None)
@@ -110,12 +111,44 @@ def test_a_friction_band_that_looks_periodic_in_the_generic_angle_torque_is_trie
 
     monkeypatch.setattr(U, "_try_family", fake_try)
     monkeypatch.setattr(U, "_rms_deg", lambda spec, x, data: 1.0 if x is _Cur.x else 0.5)
+    monkeypatch.setattr(U, "period_established", lambda g, ps, data, log=None: True)
     fam = {"unmodelled_angle": ("airflow_torque", "angle_dependent_friction"),
            "unmodelled_current": ("shaft_flux_loss",), "unmodelled_speed": ("stribeck_friction",)}
     alt = U.catalogue_alternative(_stub_generic(["unmodelled_angle", "unmodelled_current", "unmodelled_speed"], 1.0,
                                                 True), _Cur(), fam, None, lambda fr: True, log=lambda *a: None)
     assert (alt.id if alt else None) == expect
     assert tried == ["angle_dependent_friction", "stribeck_friction"]
+
+
+@pytest.mark.parametrize("established, rms_alt, expect", [
+    (False, 0.5, "angle_dependent_friction"),   # a "period" not established: the friction family, worse held-out
+    (True, 0.5, None),                          # an established period and a better generic: outside, as before
+    (False, 0.95, None),                        # the friction family does not lower the RMS by RMS_GAIN
+])
+def test_a_friction_family_is_named_when_the_outside_period_is_not_established(monkeypatch, established, rms_alt,
+                                                                               expect):
+    """Round 30 (g30adf): a Fourier series of angle and current fitted over 1-2 of its cycles (period not
+    established: unmodelled.period_established) stands in for a friction band in an open loop, where the current
+    follows the direction of motion (angle_dependent_friction@1 random open s36 / s38: series of 49 / 71 deg,
+    held-out 6.58 / 16.9 against 30.7 / 146 for the friction table). Without an established period it shows no
+    periodic torque, so the friction family whose torque opposes the motion is named (its RMS gain required); in
+    open loops only (airflow_torque@1 3B closed s21 was named angle_dependent_friction so)."""
+    from etb_gym.diagnose import unmodelled as U
+    seen = []
+
+    def fake_try(cur, cid, data, log):
+        return U.FamilyAlternative(cid, _Alt(), None, 5.0, 5.0)     # worse than the generic description's 1.0
+
+    monkeypatch.setattr(U, "_try_family", fake_try)
+    monkeypatch.setattr(U, "_rms_deg", lambda spec, x, data: 1.0 if x is _Cur.x else rms_alt)
+    monkeypatch.setattr(U, "period_established", lambda g, ps, data, log=None: seen.append(ps) or established)
+    monkeypatch.setattr(U, "open_loop", lambda data: True)
+    ps = {"period_deg": 22.0, "significant": True}
+    alt = U.catalogue_alternative(_stub_generic(["unmodelled_angle", "unmodelled_current"], 1.0, True), _Cur(),
+                                  {"unmodelled_angle": ("airflow_torque", "angle_dependent_friction")}, None,
+                                  lambda fr: True, log=lambda *a: None, ps=ps)
+    assert (alt.id if alt else None) == expect
+    assert seen == ([ps] if rms_alt < 0.9 else [])          # the residual's period is the second estimate asked
 
 
 def test_the_other_significant_tables_families_are_tried_when_the_main_tables_leave_the_noise(monkeypatch):
@@ -566,3 +599,17 @@ def test_a_refused_screening_leader_is_an_alternative_too(monkeypatch):
                                   resolves=lambda fr: False,
                                   screened=("angle_dependent_friction", "sensor_offset_gain"))
     assert tried == ["torque_constant_error", "angle_dependent_friction"] and alt.id == "angle_dependent_friction"
+
+
+def test_open_loop_is_true_for_replayed_recordings_only():
+    """unmodelled.open_loop: the friction-over-angle rule of round 30 (g30adf) holds in open loops only."""
+    import dataclasses
+
+    from diagnose_stubs import swing_data
+
+    from etb_gym.diagnose import unmodelled as U
+    data = swing_data(40.0, 20.0)
+    assert U.open_loop(data)
+    obs = dataclasses.replace(data, recs=[dataclasses.replace(rd, residual="observer") for rd in data.recs])
+    assert not U.open_loop(obs)
+    assert not U.open_loop(dataclasses.replace(data, recs=[]))

@@ -332,7 +332,7 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
         # it too (not on top of the catalogue effects they displace), and accepted by the same closed-loop rule
         alt = U.catalogue_alternative(g, nominal, families_of_term(library), data, significant, log=log,
                                       resolves=resolves,
-                                      screened=refused if resolves is not None else ())
+                                      screened=refused if resolves is not None else (), ps=ps)
         if alt is not None:           # a catalogue family with its own table does the generic tables' job
             from .explain import Step, dbic
             log(f"  {alt.id} with its table (held-out {alt.heldout:.3g}) explains what the generic tables do "

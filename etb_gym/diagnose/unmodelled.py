@@ -603,8 +603,14 @@ def _try_family(cur: F.FitResult, cid: str, data: Data, log) -> FamilyAlternativ
         return None
 
 
+def open_loop(data: Data) -> bool:
+    """Are all recordings replayed as recorded in open loop (no observer residual: model.prepare's loop detection)?"""
+    recs = getattr(data, "recs", None) or []
+    return bool(recs) and all(rd.residual == "replay" for rd in recs)
+
+
 def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: dict, data: Data, significant,
-                          log=print, resolves=None, screened: tuple = ()) -> FamilyAlternative | None:
+                          log=print, resolves=None, screened: tuple = (), ps: dict | None = None) -> FamilyAlternative | None:
     """Before a residual is called outside the catalogue: the catalogue families that act through the generic
     model's significant tables, the dominant one's first (``family_of_term``: an angle torque -> airflow, spring
     asymmetry, angle-dependent friction; a current torque -> shaft flux loss, torque-constant error; ...) are each added to ``cur`` with
@@ -690,6 +696,16 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
         if rms_alt <= (1.0 - RMS_GAIN) * rms_cur and alt.heldout < generic.heldout:
             log(f"  {alt.id} with its table predicts the held-out folds better ({alt.heldout:.3g}) than the "
                 f"generic tables whose angle torque looked periodic ({generic.heldout:.3g}): a friction over angle")
+            return alt
+        if rms_alt <= (1.0 - RMS_GAIN) * rms_cur and open_loop(data) and not period_established(generic, ps, data, log):
+            # the outside description's "period" is a fit over 1-2 of its cycles that the residual does not repeat:
+            # no periodic torque is shown, only a smooth torque over angle plus one per ampere, and in an open loop
+            # the current follows the direction of motion (it drives the plate against the friction), so the two
+            # together stand in for a friction band; the friction family's torque opposes the motion
+            # by construction, and its own table is not periodic (checked above). Open loops only: in a closed loop the
+            # controller sets the current, and an airflow torque was named so (airflow_torque@1 3B closed s21, g30adf)
+            log(f"  {alt.id} with its table (held-out {alt.heldout:.3g}, generic {generic.heldout:.3g}): the generic "
+                "description's period is not established, so it shows no periodic torque: a friction over angle")
             return alt
         log(f"  {alt.id} with its table: held-out {alt.heldout:.3g} against {generic.heldout:.3g} for the generic "
             "tables (periodic in angle): no catalogue alternative")
