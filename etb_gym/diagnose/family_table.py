@@ -138,7 +138,7 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bo
         x0 = np.concatenate([final.x, np.zeros(term.n_coef)])
         if term.split_start:
             x0 = split_start(spec_m, x0, cid, term, data)
-        pb = Problem.make(spec_m, x0, ("nominal", cid, term.id) if term.split_start else ("nominal", term.id),
+        pb = Problem.make(spec_m, x0, ("nominal", cid, term.id) if term.split_start or term.coef_grid is not None else ("nominal", term.id),
                           [term], data, formula=comp)
         h_map, pf = math.inf, None
         # a heating's states persist over the restarted segments (Effect.persistent_states): the fit's view sees
