@@ -59,6 +59,10 @@ class MapTerm:
                                   # the coil's voltage balance whose evidence is the current: thermal_term)
     split_start: bool = False     # the fit starts from the best point of a grid over the torque constant and the
                                   # back-EMF constant apart (:func:`split_start`): torque_emf_term
+    coef_grid: np.ndarray | None = None   # where the basis interpolates the coefficients onto a finer grid: the
+                                          # coefficients' own knots (roughness and visit time are taken there;
+                                          # smooth_current_term)
+    coef_axis: np.ndarray | None = None   # ... and those knots' positions on the axis the roughness is taken over
 
     @property
     def n_coef(self) -> int:
@@ -72,25 +76,13 @@ class MapTerm:
     def roughness(self) -> np.ndarray:
         """Second differences of the knot values, per value field, in normalized coefficients (through the
         basis where there is one: a direction offset constant over the grid has none)."""
+        if self.coef_grid is not None:           # second differences of the coefficients on their own axis
+            return _second_differences(np.asarray(self.coef_axis, float), 1, self.n_coef)
         if self.basis is not None:
             R = dataclasses.replace(self, basis=None).roughness()
             return R @ self.basis if R.size else np.zeros((0, self.n_coef))
-        n = self.grid.size
-        if n < 3:
-            return np.zeros((0, self.n_coef))
-        h = np.diff(np.log(self.grid) if self.cls.grid_field in LOG_GRIDS else self.grid)
-        rows = []
-        for f in range(len(self.value_fields)):
-            for k in range(1, n - 1):
-                r = np.zeros(self.n_coef)
-                # divided second difference on a possibly non-uniform grid, scaled to a uniform grid's
-                a, b = h[k - 1], h[k]
-                m = 0.5 * (a + b)
-                r[f * n + k - 1] = m / a
-                r[f * n + k] = -m / a - m / b
-                r[f * n + k + 1] = m / b
-                rows.append(r)
-        return np.array(rows)
+        return _second_differences(np.log(self.grid) if self.cls.grid_field in LOG_GRIDS else self.grid,
+                                   len(self.value_fields), self.n_coef)
 
     def candidate(self) -> Candidate:
         fit = tuple(FitParam(f"c{k}", 0.0, -1e3 * self.scale, 1e3 * self.scale, self.scale, self.unit)
@@ -99,6 +91,26 @@ class MapTerm:
 
     def component(self, coef) -> mx.Effect:
         return _Factory(self).make(np.asarray(coef, float))
+
+
+def _second_differences(x: np.ndarray, n_fields: int, n_coef: int) -> np.ndarray:
+    """Rows of divided second differences over the knots ``x`` (possibly non-uniform, scaled to a uniform
+    grid's), per value field of ``x.size`` coefficients each."""
+    n = x.size
+    if n < 3:
+        return np.zeros((0, n_coef))
+    h = np.diff(x)
+    rows = []
+    for f in range(n_fields):
+        for k in range(1, n - 1):
+            r = np.zeros(n_coef)
+            a, b = h[k - 1], h[k]
+            m = 0.5 * (a + b)
+            r[f * n + k - 1] = m / a
+            r[f * n + k] = -m / a - m / b
+            r[f * n + k + 1] = m / b
+            rows.append(r)
+    return np.array(rows)
 
 
 class _Factory:
@@ -245,6 +257,35 @@ def signed_knots(lo: float, hi: float, n: int) -> np.ndarray:
     return np.unique(g)
 
 
+FINE_PER_INTERVAL = 8    # smooth_current_term: exported knots per interval of the coefficients' knots
+WARP_CURRENT = NEAR_ZERO[0]   # ... the current axis is warped to log(1 + |i| / i_w) beyond i_w = this share of the
+                              # larger visited extent
+
+
+def smooth_current_term(term: MapTerm, data: Data) -> MapTerm:
+    """``term`` (a table over current, one value field) with the same coefficients, but its exported table a
+    cubic spline through them on the warped axis s = sign(i) log(1 + |i| / i_w), tabulated on FINE_PER_INTERVAL
+    knots per interval (uniform in s) so the plant's piecewise-linear lookup follows the spline. A semiconductor's
+    forward drop grows with the log of the current, a resistance linearly: on the current's own axis such a loss
+    bends most near 0 A, and a straight line between knots 0.3-1 A apart is off by 10-50 mV where a 2 mV error
+    moves a plate held against its spring by more than the noise (supply_drop@1 random s36 open: the truth's own
+    drop tabulated on the 13-knot current grid replays the held-out recording at 8.0x the noise, the same 13 values
+    splined on the warped axis at 1.1x; docs/diagnosis-rounds/round30-e30supply.md). Roughness: the coefficients'
+    second differences over s; visit time: at the coefficients' knots."""
+    g = np.asarray(term.grid, float)
+    cur = [rd.rec.current_A for rd in data.recs if rd.rec.current_A is not None]
+    top = max(float(np.quantile(np.abs(np.concatenate(cur)), 0.998)), 0.1) if cur else max(abs(g[0]), abs(g[-1]))
+    iw = WARP_CURRENT * top
+    s = np.sign(g) * np.log1p(np.abs(g) / iw)
+    fine_s = np.unique(np.concatenate([np.linspace(a, b, FINE_PER_INTERVAL + 1) for a, b in zip(s[:-1], s[1:])]))
+    fine = np.sign(fine_s) * iw * np.expm1(np.abs(fine_s))
+    fine[np.searchsorted(fine_s, s)] = g                 # the coefficients' knots exactly
+    from scipy.interpolate import CubicSpline
+    B = CubicSpline(s, np.eye(g.size), bc_type="natural")(fine_s)
+    B[np.abs(B) < 1e-12] = 0.0
+    return dataclasses.replace(term, id=f"{term.id}_smooth", grid=fine, basis=B, coef_grid=g, coef_axis=s)
+
+
 def hat_weights(x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A table's piecewise-linear interpolation (effects_maps' lookup) as weights: per sample of ``x`` the knot
     ``k`` to its left and the fraction ``f`` towards knot ``k + 1`` (weights 1 - f and f; held at the end knots
@@ -272,6 +313,9 @@ def visit_time_s(term: "MapTerm", data: Data) -> np.ndarray | None:
     knot, in the table's own variable (angle, speed per direction, current). None: not known (no current
     recorded for a current table; another grid). With a basis, a coefficient's time is the sum over the knots it
     moves (a direction offset: every knot of both directions)."""
+    if term.coef_grid is not None:
+        return visit_time_s(dataclasses.replace(term, grid=np.asarray(term.coef_grid, float), basis=None,
+                                                coef_grid=None, coef_axis=None), data)
     if term.basis is not None:
         v = visit_time_s(dataclasses.replace(term, basis=None), data)
         return None if v is None else (np.abs(term.basis) > 0).T.astype(float) @ v
@@ -315,6 +359,8 @@ def family_terms(cid: str, base, data: Data) -> list:
         out.append(direction_split_term(t) if t.cls is mx.SpeedFrictionMap else direction_offset_term(cid))
     if cid == "coil_heating":            # losses that go with the voltage as well as the copper loss (the folds decide)
         out.append(thermal_term(cid, base, data, voltage=True))
+    if cid == "supply_drop" and t is not None:      # the same coefficients, splined on a log-warped current axis
+        out.append(smooth_current_term(t, data))
     if cid == "torque_constant_error":
         grid = current_grid(data, base, 9, by_extent=True)
         out.append(MapTerm(f"{cid}_current_map", "electrical", mx.CurrentTorqueConstantMap, grid,
