@@ -140,7 +140,7 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bo
             x0 = split_start(spec_m, x0, cid, term, data)
         # a smooth current table (shapes.smooth_current_term) is fitted with the formula's parameters free: with
         # them held, the formula's fitted knee is a feature the spline has to cancel (supply_drop@1 3B s36 open:
-        # twin 7.29x held, 3.47x free; docs/diagnosis-rounds/round30-e30supply.md)
+        # twin 7.29x held, 3.47x free; docs/diagnosis-history.md, round 30 e30supply)
         free = ("nominal", cid, term.id) if term.split_start or term.coef_grid is not None else ("nominal", term.id)
         pb = Problem.make(spec_m, x0, free, [term], data, formula=comp)
         h_map, pf = math.inf, None

@@ -425,7 +425,7 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
     docs/diagnosis-history.md round 14). Where the scan's best point is the candidate switched off (its
     Candidate.off value: the current model), the local fit runs from it and from the scan's best other point and
     keeps the better (scan_start's ``off``; backlash@2 3B s34 open: play 0 won the scan and the fit stayed, dBIC
-    +13; from the other point -1114; docs/diagnosis-rounds/round30-h30backlash.md)."""
+    +13; from the other point -1114; docs/diagnosis-history.md, round 30 h30backlash)."""
     if profile_scan is None:
         profile_scan = (any(rd.residual == "observer" for rd in data.recs)
                         or bool(spec.candidates and spec.candidates[-1].profiled))

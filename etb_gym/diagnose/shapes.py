@@ -270,7 +270,7 @@ def smooth_current_term(term: MapTerm, data: Data) -> MapTerm:
     bends most near 0 A, and a straight line between knots 0.3-1 A apart is off by 10-50 mV where a 2 mV error
     moves a plate held against its spring by more than the noise (supply_drop@1 random s36 open: the truth's own
     drop tabulated on the 13-knot current grid replays the held-out recording at 8.0x the noise, the same 13 values
-    splined on the warped axis at 1.1x; docs/diagnosis-rounds/round30-e30supply.md). Roughness: the coefficients'
+    splined on the warped axis at 1.1x; docs/diagnosis-history.md, round 30 e30supply). Roughness: the coefficients'
     second differences over s; visit time: at the coefficients' knots."""
     g = np.asarray(term.grid, float)
     cur = [rd.rec.current_A for rd in data.recs if rd.rec.current_A is not None]
