@@ -335,9 +335,10 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
                                       screened=refused if resolves is not None else (), ps=ps)
         if alt is not None:           # a catalogue family with its own table does the generic tables' job
             from .explain import Step, dbic
+            others = [st.id for st in steps if st.id != alt.id]     # the named family may be one of the steps
             log(f"  {alt.id} with its table (held-out {alt.heldout:.3g}) explains what the generic tables do "
                 f"({g.heldout:.3g}): named instead of 'outside the catalogue'"
-                + (f"; {', '.join(st.id for st in steps)} not given as the explanation" if steps else ""))
+                + (f"; {', '.join(others)} not given as the explanation" if others else ""))
             res.refinements = [alt.refinement] if alt.refinement is not None else []
             res.dropped = tuple(st.id for st in steps)
             gain = 1.0 - alt.heldout / h_cat if h_cat > 0 else 0.0
