@@ -199,7 +199,6 @@ def make_fun(spec: Spec, data: Data, masks=None, with_current: bool = True):
 SCAN_POINTS = 4       # scan values per side of the start (log-spaced)
 SCAN_RATIO = 3.0      # ... at least this factor apart
 SCAN_MIN = 0.5        # ... and at least this many scale steps from the start (closer, the local fit is enough)
-OFF_TOL = 1e-6        # normalized distance within which a scan point is the candidate's off value
 PROFILE_STEPS = 3     # profiled scan: Gauss-Newton steps on the nominal parameters per scan point (Jacobian fixed) ...
 PROFILE_GAIN = 0.1    # ... while each lowers the RSS by at least this share (chosen, not tuned: on the backlash of
                       # docs/diagnosis-history.md round 13 the chord steps lowered it by 54, 52, 55 and 11 %)
@@ -255,20 +254,16 @@ def profile_step(J: np.ndarray, r: np.ndarray, x: np.ndarray, profile, lo, hi) -
 
 
 def scan_start(fun, x0: np.ndarray, r0: np.ndarray, index: int, lo: np.ndarray, hi: np.ndarray, profile=(),
-               diff_step: float = 0.03, off: float | None = None):
+               diff_step: float = 0.03):
     """The best of ``x0`` and the coarse scan along parameter ``index`` (see :func:`scan_offsets`), each scan
     point one evaluation of ``fun``; with ``profile`` (indices of the parameters already fitted, e.g. the
     nominal ones) each scan point is tried again with those re-solved by up to PROFILE_STEPS Gauss-Newton steps
     (:func:`profile_step`, their Jacobian taken once at ``x0``; each kept while it lowers the RSS by
     PROFILE_GAIN): a candidate whose first-order effect the
     fitted parameters already carry (a play: a preload shift) is otherwise only seen to make the fit worse.
-    ``off``: the parameter's normalized value where the candidate's effect is switched off (Candidate.off); a
-    scan point there is left out (it is the current model itself; :func:`fit` decides between it and the rest).
     Returns (x, r, number of evaluations)."""
     best_x, best_r, best = x0, r0, float(r0 @ r0)
     offsets = scan_offsets(lo[index] - x0[index] + 1e-9, hi[index] - x0[index] - 1e-9)
-    if off is not None:
-        offsets = [d for d in offsets if abs(x0[index] + d - off) > OFF_TOL]
     n = len(offsets)
     J = None
     if profile and offsets:
@@ -422,10 +417,7 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
     step (the test asks <= 1.1x), where the plain scan's twin passes. A free play in open loop needs it as in closed
     loop: on backlash@2 3B seed 6 (an asymmetric play, open loop) the plain scan stopped at play 0.0022 rad (dBIC
     -40, held-out +1.6 %: not accepted), the profiled one at 0.0111 rad (dBIC -630, held-out +25.6 %;
-    docs/diagnosis-history.md round 14). Where the scan's best point is the candidate switched off (its
-    Candidate.off value: the current model), the local fit runs from it and from the scan's best other point and
-    keeps the better (scan_start's ``off``; backlash@2 3B s34 open: play 0 won the scan and the fit stayed, dBIC
-    +13; from the other point -1114; docs/diagnosis-history.md, round 30 h30backlash)."""
+    docs/diagnosis-history.md round 14)."""
     if profile_scan is None:
         profile_scan = (any(rd.residual == "observer" for rd in data.recs)
                         or bool(spec.candidates and spec.candidates[-1].profiled))
@@ -441,23 +433,10 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
         return FitResult(spec, x0, float(r0 @ r0), r0.size, None, 1, integrated_time(r0))
     n_scan = 0
     x_start = x0
-    alt = None                      # the scan's best point other than the candidate switched off, when that won
     if scan is not None and 0 <= scan < len(x0):
         profile = range(min(len(spec.nominal), scan)) if profile_scan else ()
+        xs, rs, n_scan = scan_start(fun, x0, r0, scan, lo, hi, profile, diff_step)
         last = spec.candidates[-1] if spec.candidates else None
-        off = off_value(spec, scan)
-        xs, rs, n_scan = scan_start(fun, x0, r0, scan, lo, hi, profile, diff_step, off)
-        if off is not None and lo[scan] <= off <= hi[scan] and off != x0[scan]:
-            # the candidate switched off is the current model: where it beats every other scan point a local fit
-            # from it alone may not leave it (a play at 0: the first order is a preload the calibration carries)
-            xo = x0.copy()
-            xo[scan] = min(max(off, lo[scan] + 1e-9), hi[scan] - 1e-9)
-            ro = fun(xo)
-            n_scan += 1
-            if fun.failure is None and float(ro @ ro) < float(rs @ rs):
-                alt = (xs, rs)
-                xs, rs = xo, ro
-        fun.failure = None
         if last is not None and last.coscaled and scan == len(spec.params) - len(last.fit):
             xc, rc, n_c = coscale_start(fun, spec, x0, r0, scan, lo, hi)
             n_scan += n_c
@@ -466,11 +445,6 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
         x0, r0 = xs, rs
     nfev = max_nfev or 30 * (len(x0) + 1)
     res = local_fit(fun, x0, lo, hi, diff_step, nfev)
-    if alt is not None:             # ... so the best of the other scan points is fitted too, and the better kept
-        res_alt = local_fit(fun, alt[0], lo, hi, diff_step, nfev)
-        n_scan += int(res_alt.nfev)
-        if res_alt.cost < res.cost:
-            res = res_alt
     last = spec.candidates[-1] if spec.candidates else None
     if (scan is not None and last is not None and last.starts and len(last.fit) >= 2
             and scan == len(spec.params) - len(last.fit) and not np.any(x_start[scan:])):
@@ -484,15 +458,6 @@ def fit(spec: Spec, data: Data, x0=None, masks=None, max_nfev: int | None = None
     r = res.fun
     return FitResult(spec, res.x, float(r @ r), r.size, res.jac, int(res.nfev) + n_scan, integrated_time(r),
                      block_scores(res.jac, r, residual_blocks(data, BLOCK_S, masks)))
-
-
-def off_value(spec: Spec, index: int) -> float | None:
-    """The normalized value of parameter ``index`` at which its candidate's effect is switched off (a number in
-    Candidate.off for that field), or None (a nominal parameter, or an off value that is a plant key)."""
-    owner, p = spec.params[index]
-    c = next((k for k in spec.candidates if k.id == owner), None)
-    v = dict(c.off).get(p.name) if c is not None and c.off else None
-    return (float(v) - p.init) / p.scale if isinstance(v, (int, float)) else None
 
 
 def calibrate(spec: Spec, data: Data, max_nfev: int | None = None) -> FitResult:
