@@ -120,19 +120,22 @@ def test_a_friction_band_that_looks_periodic_in_the_generic_angle_torque_is_trie
     assert tried == ["angle_dependent_friction", "stribeck_friction"]
 
 
-@pytest.mark.parametrize("established, rms_alt, expect", [
-    (False, 0.5, "angle_dependent_friction"),   # a "period" not established: the friction family, worse held-out
-    (True, 0.5, None),                          # an established period and a better generic: outside, as before
-    (False, 0.95, None),                        # the friction family does not lower the RMS by RMS_GAIN
+@pytest.mark.parametrize("established, rms_alt, h_catalogue, expect", [
+    (False, 0.5, None, "angle_dependent_friction"),   # a "period" not established: the friction family, worse held-out
+    (False, 0.5, 6.0, "angle_dependent_friction"),    # ... no worse than the catalogue model the selection built
+    (False, 0.5, 1.2, None),                          # the catalogue model predicts the folds better: not displaced
+    (True, 0.5, None, None),                          # an established period and a better generic: outside, as before
+    (False, 0.95, None, None),                        # the friction family does not lower the RMS by RMS_GAIN
 ])
 def test_a_friction_family_is_named_when_the_outside_period_is_not_established(monkeypatch, established, rms_alt,
-                                                                               expect):
+                                                                               h_catalogue, expect):
     """Round 30 (g30adf): a Fourier series of angle and current fitted over 1-2 of its cycles (period not
     established: unmodelled.period_established) stands in for a friction band in an open loop, where the current
     follows the direction of motion (angle_dependent_friction@1 random open s36 / s38: series of 49 / 71 deg,
     held-out 6.58 / 16.9 against 30.7 / 146 for the friction table). Without an established period it shows no
     periodic torque, so the friction family whose torque opposes the motion is named (its RMS gain required); in
-    open loops only (airflow_torque@1 3B closed s21 was named angle_dependent_friction so)."""
+    open loops only (airflow_torque@1 3B closed s21 was named angle_dependent_friction so), and never over a catalogue
+    model that predicts the folds better (airflow_torque@1 random open s40: airflow 6.13, the friction 35.1; lead)."""
     from etb_gym.diagnose import unmodelled as U
     seen = []
 
@@ -146,9 +149,10 @@ def test_a_friction_family_is_named_when_the_outside_period_is_not_established(m
     ps = {"period_deg": 22.0, "significant": True}
     alt = U.catalogue_alternative(_stub_generic(["unmodelled_angle", "unmodelled_current"], 1.0, True), _Cur(),
                                   {"unmodelled_angle": ("airflow_torque", "angle_dependent_friction")}, None,
-                                  lambda fr: True, log=lambda *a: None, ps=ps)
+                                  lambda fr: True, log=lambda *a: None, ps=ps, h_catalogue=h_catalogue)
     assert (alt.id if alt else None) == expect
-    assert seen == ([ps] if rms_alt < 0.9 else [])          # the residual's period is the second estimate asked
+    no_worse = h_catalogue is None or 5.0 <= h_catalogue / (1.0 - U.GAIN_OUT)
+    assert seen == ([ps] if rms_alt < 0.9 and no_worse else [])   # the residual's period is the second estimate asked
 
 
 def test_the_other_significant_tables_families_are_tried_when_the_main_tables_leave_the_noise(monkeypatch):

@@ -332,7 +332,7 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
         # it too (not on top of the catalogue effects they displace), and accepted by the same closed-loop rule
         alt = U.catalogue_alternative(g, nominal, families_of_term(library), data, significant, log=log,
                                       resolves=resolves,
-                                      screened=refused if resolves is not None else (), ps=ps)
+                                      screened=refused if resolves is not None else (), ps=ps, h_catalogue=h_cat)
         if alt is not None:           # a catalogue family with its own table does the generic tables' job
             from .explain import Step, dbic
             others = [st.id for st in steps if st.id != alt.id]     # the named family may be one of the steps
