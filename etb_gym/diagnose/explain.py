@@ -58,7 +58,7 @@ from . import discriminate as D
 from . import disturbance
 from . import fit as F
 from .candidates import CANDIDATES
-from .model import Data, Spec
+from .model import Data, Spec, open_loop
 
 BIC_MIN = 10.0
 CV_MIN_GAIN = 0.10
@@ -316,7 +316,7 @@ def _direction(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list, ga
     for a torque linear in its parameters (airflow's polynomial) and not for a friction's stick-slip (measured:
     a rational Stribeck curve screened at dBIC -13 against airflow's -81; fitted to convergence, angle RMS x0.08
     against x0.57). Returns the evidence (None when the leader stays first) and reorders ``gains``."""
-    if not _open_loop(ctx.data):
+    if not open_loop(ctx.data):
         return None
     leader = gains[0][2]
     close = D.rivals(screened, ref.rss, leader)          # close ones: the tables' job (_tell_apart)
@@ -411,18 +411,13 @@ def _winner_first(ctx: _Ctx, cur: F.FitResult, ref: F.FitResult, screened: list,
     gains.sort(key=lambda s: (s[2] != w, s[1]))              # the physics' choice first, then by dBIC
 
 
-def _open_loop(data: Data) -> bool:
-    """All recordings scored by the replay (open loop): a closed loop's observer residual shows another side."""
-    return all(rd.residual == "replay" for rd in data.recs)
-
-
 def _current_side(ctx: _Ctx, test: str, cur: F.FitResult, ref: F.FitResult, screened: list, gains: list, cv0: float,
                   rnd: int):
     """Step 2a (open loops), where the coil's current decides: ``test`` "voltage_side" (is the mismatch in the
     coil's voltage balance rather than on the plate?) or "reading_or_motion" (a reading map leads: the current
     sees the true motion, not the reading); the function of that name in discriminate. Returns the evidence and
     puts its choice first in ``gains``, or None."""
-    if not _open_loop(ctx.data):
+    if not open_loop(ctx.data):
         return None
     ctx.describe(f"round {rnd + 1}: " + {"voltage_side": "voltage or torque side",
                                          "reading_or_motion": "in the reading or in the motion"}[test])
@@ -442,7 +437,7 @@ def _excess_down(new: F.FitResult, old: F.FitResult, data: Data) -> bool:
     excess went 0.28 -> 0.06). Above 1.27x the noise the RMS_MIN_GAIN route is the looser one, so only
     recordings near the noise floor are affected. A closed loop's observer residual stays near the noise
     whatever the model (the loop corrects it), so there the RMS gain alone counts."""
-    if not _open_loop(data):
+    if not open_loop(data):
         return False
     a = F.evaluate(new.spec, data, new.x, with_current=False)
     b = F.evaluate(old.spec, data, old.x, with_current=False)

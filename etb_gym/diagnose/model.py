@@ -101,6 +101,13 @@ RESIDUALS = ("auto", "replay", "observer")
 STEPPER_ORDER = 2    # the fixed-rate stepper's order of convergence (docs/model.md sec. 9): Richardson's p
 
 
+def open_loop(data: "Data") -> bool:
+    """Are all recordings replayed as recorded in open loop (no observer residual: :func:`prepare`'s loop
+    detection)? A closed loop's observer residual shows another side of an effect."""
+    recs = getattr(data, "recs", None) or []
+    return bool(recs) and all(rd.residual == "replay" for rd in recs)
+
+
 def prepare(recordings, nominal_supply_V: float, segment_min_s: float = SEGMENT_MIN_S,
             current_weight: float = 0.3, residual: str = "replay") -> Data:
     """The recordings with what the fit needs. ``residual``: "replay" (the recorded voltage replayed segment by

@@ -15,6 +15,7 @@ import dataclasses
 import math
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from ..components import effects_maps as mx
 from .candidates import Candidate, FitParam
@@ -258,8 +259,8 @@ def signed_knots(lo: float, hi: float, n: int) -> np.ndarray:
 
 
 FINE_PER_INTERVAL = 8    # smooth_current_term: exported knots per interval of the coefficients' knots
-WARP_CURRENT = NEAR_ZERO[0]   # ... the current axis is warped to log(1 + |i| / i_w) beyond i_w = this share of the
-                              # larger visited extent
+WARP_CURRENT = NEAR_ZERO[0]   # ... the current axis is warped to log(1 + |i| / i_w), i_w = this share of the
+                              # recorded |current|'s 99.8 % quantile
 
 
 def smooth_current_term(term: MapTerm, data: Data) -> MapTerm:
@@ -280,7 +281,6 @@ def smooth_current_term(term: MapTerm, data: Data) -> MapTerm:
     fine_s = np.unique(np.concatenate([np.linspace(a, b, FINE_PER_INTERVAL + 1) for a, b in zip(s[:-1], s[1:])]))
     fine = np.sign(fine_s) * iw * np.expm1(np.abs(fine_s))
     fine[np.searchsorted(fine_s, s)] = g                 # the coefficients' knots exactly
-    from scipy.interpolate import CubicSpline
     B = CubicSpline(s, np.eye(g.size), bc_type="natural")(fine_s)
     B[np.abs(B) < 1e-12] = 0.0
     return dataclasses.replace(term, id=f"{term.id}_smooth", grid=fine, basis=B, coef_grid=g, coef_axis=s)

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..components import effects_maps as mx
 from . import fit as F
-from .model import Data, Spec, angle_residuals_deg, simulate
+from .model import Data, Spec, angle_residuals_deg, open_loop, simulate
 from .penalized import Problem, fit_penalized, heldout_error
 from .shapes import MapTerm, angle_grid, current_grid, speed_grid
 
@@ -603,12 +603,6 @@ def _try_family(cur: F.FitResult, cid: str, data: Data, log) -> FamilyAlternativ
         return None
 
 
-def open_loop(data: Data) -> bool:
-    """Are all recordings replayed as recorded in open loop (no observer residual: model.prepare's loop detection)?"""
-    recs = getattr(data, "recs", None) or []
-    return bool(recs) and all(rd.residual == "replay" for rd in recs)
-
-
 def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: dict, data: Data, significant,
                           log=print, resolves=None, screened: tuple = (), ps: dict | None = None,
                           h_catalogue: float | None = None) -> FamilyAlternative | None:
@@ -700,15 +694,15 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
             log(f"  {alt.id} with its table predicts the held-out folds better ({alt.heldout:.3g}) than the "
                 f"generic tables whose angle torque looked periodic ({generic.heldout:.3g}): a friction over angle")
             return alt
-        no_worse = h_catalogue is None or alt.heldout <= h_catalogue / (1.0 - GAIN_OUT)
-        if rms_alt <= (1.0 - RMS_GAIN) * rms_cur and open_loop(data) and not no_worse:
+        friction_reading = rms_alt <= (1.0 - RMS_GAIN) * rms_cur and open_loop(data)
+        if friction_reading and h_catalogue is not None and alt.heldout > h_catalogue / (1.0 - GAIN_OUT):
             # the catalogue model the selection built predicts the folds better than the friction reading: that
             # reading does not displace it (airflow_torque@1 random open s40: airflow accepted, held-out 6.13; the
             # friction with its table 35.1 was named over a 54.9 deg series, 1.1 cycles, held-out 3.51; round 30, lead)
             log(f"  {alt.id} with its table (held-out {alt.heldout:.3g}) predicts the folds worse than the catalogue "
                 f"model ({h_catalogue:.3g}): not read as a friction over angle")
-        if rms_alt <= (1.0 - RMS_GAIN) * rms_cur and open_loop(data) and no_worse \
-                and not period_established(generic, ps, data, log):
+            friction_reading = False
+        if friction_reading and not period_established(generic, ps, data, log):
             # the outside description's "period" is a fit over 1-2 of its cycles that the residual does not repeat:
             # no periodic torque is shown, only a smooth torque over angle plus one per ampere, and in an open loop
             # the current follows the direction of motion (it drives the plate against the friction), so the two
