@@ -240,6 +240,9 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
             ctx.log(f"  {c}: starts at " + ", ".join(f"{spec.params[k][1].name} {math.degrees(vals[spec.names[k]]):.2f} deg"
                                                      for k in moved)
                     + ", where the readings went furthest (neither they nor the model's plate reach the nameplate's stop)")
+        if c in D.CURRENT_PINNED:           # closed loops: a drop read from the current (discriminate.current_start)
+            x0 = D.current_start(_spec(screen_dict, ctx.nominal, active + (c,)), ctx.data, x0, len(cur.x),
+                                 log=ctx.log)
         tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), x0, SCREEN_NFEV, len(cur.x)))
     ctx.describe(f"round {rnd + 1}: screening {len(tasks) - 1} candidates")
     res = ctx.runner.map(tasks, ctx.progress)
