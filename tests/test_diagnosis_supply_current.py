@@ -46,3 +46,48 @@ def test_the_closed_loops_drop_is_read_from_the_current(drop_V):
 def test_an_open_loop_keeps_the_candidates_start():
     spec, x0, x, _ = _start([], closed=False)
     assert np.array_equal(x, x0)
+
+
+class _Runner:
+    """The screening's tasks answered without simulating: the RSS a start leads to (``rss_of``)."""
+
+    def __init__(self, rss_of):
+        self.rss_of, self.starts = rss_of, []
+
+    def map(self, tasks, progress=None):
+        out = []
+        for _, _, _, ids, x0, *_ in tasks:
+            self.starts.append((ids, np.array(x0)))
+            out.append((np.array(x0), self.rss_of(ids, x0), 6000, None, 1, 1.0, None))
+        return out
+
+
+@pytest.mark.parametrize("pinned_rss, kept", [(5000.0, "pinned"), (9000.0, "own")])
+def test_the_screening_keeps_the_better_of_the_two_starts(monkeypatch, pinned_rss, kept):
+    """explain._screen fits a supply drop from its own start and from the one read from the current, and keeps the
+    fit that ends lower (a second start, not a replacement)."""
+    from etb_gym.diagnose import explain as E
+    base = make_plant("3B", substeps=10)
+    spec = Spec(base)
+    cur = F.FitResult(spec, np.zeros(len(spec.nominal)), 10000.0, 6000, None, 1)
+    marker = 0.123
+
+    def fake_start(sp, data, x0, n_old, log=None):
+        x = np.array(x0, float)
+        x[n_old] = marker
+        return x
+
+    monkeypatch.setattr(D, "current_start", fake_start)
+
+    def rss_of(ids, x0):
+        if "supply_drop" not in ids:
+            return 10000.0
+        return pinned_rss if x0[len(spec.nominal)] == marker else 8000.0
+
+    runner = _Runner(rss_of)
+    ctx = E._Ctx(None, runner, base, base.to_dict(), spec.nominal, None, lambda *a: None, None)
+    _, screened = E._screen(ctx, cur, ["supply_drop", "coil_heating"], 0)
+    fr = {c: f for _, c, f in screened}
+    assert len(runner.starts) == 4                          # the current model, two supply-drop starts, the heating
+    assert fr["supply_drop"].rss == (pinned_rss if kept == "pinned" else 8000.0)
+    assert fr["coil_heating"].rss == 10000.0

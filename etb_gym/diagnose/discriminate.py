@@ -524,9 +524,9 @@ def current_start(spec, data: Data, x0: np.ndarray, n_old: int, diff_step: float
     So: (1) one Gauss-Newton step of the levels (the ``off`` parameters: the drop switched off at zero) on the
     current residual alone (the voltage balance: a direct reading of the missing voltage); (2) one of the
     calibration's parameters (the first ``n_old`` - ``len(spec.nominal)`` are the nominal ones) on all of it, the
-    torques re-balanced to the current the drop leaves. The start is kept only where its cost is below
-    ``x0``'s; the screening fit and its likelihood decide as before (s41: 34379 at this start, 6346 after 12
-    evaluations)."""
+    torques re-balanced to the current the drop leaves. Returned only where its cost is below ``x0``'s (else
+    ``x0`` itself); the screening (explain._screen) fits from both starts and keeps the fit that ends lower, so
+    the likelihood decides as before (s41: 34379 at this start, 6346 after 12 evaluations)."""
     from .model import _layout
     cand = spec.candidates[-1]
     if cand.id not in CURRENT_PINNED or data.current_weight <= 0 or not any(
