@@ -224,8 +224,9 @@ class _Ctx:
 
 def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
     """Step 1: every remaining candidate added and refitted at SCREEN_SUBSTEPS (the current model refitted there
-    too). Returns (the current model's refit, [(dBIC, id, FitResult)] best first), or None when the current
-    model cannot be refitted at the screening step."""
+    too). A closed loop's supply drop is fitted from a second start too, its levels read from the current
+    (discriminate.current_start), and the fit that ends lower is kept. Returns (the current model's refit,
+    [(dBIC, id, FitResult)] best first), or None when the current model cannot be refitted at the screening step."""
     active = tuple(c.id for c in cur.spec.candidates)
     screen_dict = dict(ctx.base_dict, substeps=min(SCREEN_SUBSTEPS, ctx.base.substeps))
     tasks = [("fit", screen_dict, ctx.nominal, active, cur.x, SCREEN_NFEV)]
