@@ -224,11 +224,13 @@ class _Ctx:
 
 def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
     """Step 1: every remaining candidate added and refitted at SCREEN_SUBSTEPS (the current model refitted there
-    too). Returns (the current model's refit, [(dBIC, id, FitResult)] best first), or None when the current
-    model cannot be refitted at the screening step."""
+    too). A closed loop's supply drop is fitted from a second start too, its levels read from the current
+    (discriminate.current_start), and the fit that ends lower is kept. Returns (the current model's refit,
+    [(dBIC, id, FitResult)] best first), or None when the current model cannot be refitted at the screening step."""
     active = tuple(c.id for c in cur.spec.candidates)
     screen_dict = dict(ctx.base_dict, substeps=min(SCREEN_SUBSTEPS, ctx.base.substeps))
     tasks = [("fit", screen_dict, ctx.nominal, active, cur.x, SCREEN_NFEV)]
+    extra: list = []                        # (candidate, task) of a second start (discriminate.current_start)
     stops = any(p.ref in STOP_REFS for c in remaining for p in CANDIDATES[c].fit)
     model_deg = model_angles(cur, ctx.data) if stops else None     # where a stop's angle starts (reached_stop)
     for c in remaining:
@@ -241,14 +243,28 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
                                                      for k in moved)
                     + ", where the readings went furthest (neither they nor the model's plate reach the nameplate's stop)")
         tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), x0, SCREEN_NFEV, len(cur.x)))
+        if c in D.CURRENT_PINNED:           # closed loops: a drop read from the current (discriminate.current_start),
+            xc = D.current_start(_spec(screen_dict, ctx.nominal, active + (c,)), ctx.data, x0, len(cur.x),
+                                 log=ctx.log)               # a second start: the better screening fit is kept
+            if xc is not x0:
+                extra.append((c, ("fit", screen_dict, ctx.nominal, active + (c,), xc, SCREEN_NFEV, len(cur.x))))
+    n_main = len(tasks)
+    tasks += [t for _, t in extra]          # after every candidate's own start: res[1 + k] is remaining[k]'s
     ctx.describe(f"round {rnd + 1}: screening {len(tasks) - 1} candidates")
     res = ctx.runner.map(tasks, ctx.progress)
     if isinstance(res[0], Skipped):         # the current model failed at the screening step: stop here
         ctx.log(f"  the current model cannot be refitted at {SCREEN_SUBSTEPS} substeps ({res[0]}): selection stops")
         return None
     ref = F.FitResult(cur.spec, *res[0])
+    main = {c: k + 1 for k, c in enumerate(remaining)}
+    for j, (c, _) in enumerate(extra):      # the second start's fit where it ends lower (or the first failed)
+        r0, r1 = res[main[c]], res[n_main + j]
+        if not isinstance(r1, Skipped) and (isinstance(r0, Skipped) or r1[1] < r0[1]):
+            ctx.log(f"  {c}: the start read from the current fits better: RSS "
+                    + ("failed" if isinstance(r0, Skipped) else f"{r0[1]:.0f}") + f" -> {r1[1]:.0f}")
+            res[main[c]] = r1
     screened = []
-    for c, r in zip(remaining, res[1:]):
+    for c, r in zip(remaining, res[1:1 + len(remaining)]):
         if isinstance(r, Skipped):
             ctx.skip(c, rnd, r)
             continue
