@@ -109,15 +109,27 @@ def _continued(total: np.ndarray, prof: np.ndarray, grid: np.ndarray, seen: np.n
     return out
 
 
-def _toward_edge(new: np.ndarray, old: np.ndarray, total: np.ndarray, seen: np.ndarray) -> np.ndarray:
+# Families whose table's edge value is held where the slope rule would stop it (_continued's zero step) and the
+# visited-knot rule would go on along the formula: a friction level over angle. Its formula (slope, curvature) is
+# fitted together with the table, which takes its shape wherever the data are, so beyond them the formula's
+# curvature is not the data's (angle_dependent_friction@1 3B closed s41: curvature -0.244 N m, the 90 deg knot
+# 45 mN m below the truth's level against 5.6 mN m at the last reached knot, 84.4 deg; docs/diagnosis-history.md,
+# round 31 h31adf). A friction's level does not follow a trend into the stop: a hold is the smaller extrapolation.
+HOLD_FAMILIES = ("friction",)
+
+
+def _toward_edge(new: np.ndarray, old: np.ndarray, total: np.ndarray, seen: np.ndarray,
+                 hold: bool = False) -> np.ndarray:
     """Knots beyond the data's edge (``seen``'s first / last): ``new``'s step from the edge knot's value where it
     is smaller than ``old``'s and goes the same way, else ``old``'s value: the smaller of the two extrapolations
-    (as :func:`_continued` takes the smaller of the slope's and the formula's)."""
+    (as :func:`_continued` takes the smaller of the slope's and the formula's). With ``hold`` (a friction level
+    over angle) a zero step, the edge's value held, counts as the smaller one too (:data:`HOLD_FAMILIES`)."""
     out = new.copy()
     for e, ks in ((seen[-1], range(seen[-1] + 1, total.size)), (seen[0], range(seen[0]))):
         for k in ks:
             dn, do = new[k] - total[e], old[k] - total[e]
-            out[k] = total[e] + dn if dn * do > 0 and abs(dn) < abs(do) else old[k]
+            held = hold and dn == 0.0
+            out[k] = total[e] + dn if (dn * do > 0 or held) and abs(dn) <= abs(do) else old[k]
     return out
 
 
@@ -187,7 +199,7 @@ def continue_tables(final: F.FitResult, shaped, data: Data, note: dict | None = 
             new = _continued(total, prof, grid, seen, lh)
             if by_edge:     # no further from the data's edge than the visited knots' rule (round 23) goes
                 new = _toward_edge(new, _continued(total, prof, grid, visited, lh) if visited.size >= 2 else total,
-                                   total, seen)
+                                   total, seen, hold=term.family in HOLD_FAMILIES)
             if np.allclose(new, total, rtol=0.0, atol=1e-12):
                 continue
             for p, k, v in zip(ps, idx, new - prof):
