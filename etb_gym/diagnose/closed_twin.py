@@ -199,7 +199,7 @@ def continue_tables(final: F.FitResult, shaped, data: Data, note: dict | None = 
             new = _continued(total, prof, grid, seen, lh)
             if by_edge:     # no further from the data's edge than the visited knots' rule (round 23) goes
                 new = _toward_edge(new, _continued(total, prof, grid, visited, lh) if visited.size >= 2 else total,
-                                   total, seen, hold=term.family in HOLD_FAMILIES)
+                                   total, seen, hold=getattr(term, "family", None) in HOLD_FAMILIES)
             if np.allclose(new, total, rtol=0.0, atol=1e-12):
                 continue
             for p, k, v in zip(ps, idx, new - prof):
