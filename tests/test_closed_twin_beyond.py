@@ -127,3 +127,14 @@ def test_a_friction_table_holds_its_edge_beyond_the_datas_reach(monkeypatch):
     np.testing.assert_allclose(out.x[9] + prof[9], 0.002)        # held at 80 deg's total
     final, out, note = _case(monkeypatch, lambda x: 100.0, family="mechanical", prof=prof, table=table)
     assert out is final                              # other families: the formula's continuation stays
+
+
+def test_a_friction_level_holds_its_edge_where_no_visited_interval_gives_a_slope():
+    # angle_dependent_friction@1 random closed s41 (round 31): the data from limp-home (3 deg) up, the knot below it
+    # at the formula's curvature, the interval above the edge knot not visited (no slope)
+    total = np.zeros(GRID.size)
+    total[0] = -0.04                                 # the formula's value: not reached
+    total[1] = 0.004                                 # the edge knot; 20 deg not visited, 30.. deg visited
+    seen = np.array([1, 3, 4, 5, 6, 7, 8, 9])
+    np.testing.assert_array_equal(_continued(total, total, GRID, seen, math.nan)[0], -0.04)   # left as it is
+    np.testing.assert_array_equal(_continued(total, total, GRID, seen, math.nan, hold=True)[0], 0.004)
