@@ -81,20 +81,25 @@ def check_tables(formula: F.FitResult, final: F.FitResult, steps_before: list, s
     return final if info["kept"] else formula
 
 
-def _continued(total: np.ndarray, prof: np.ndarray, grid: np.ndarray, seen: np.ndarray, lh: float) -> np.ndarray:
+def _continued(total: np.ndarray, prof: np.ndarray, grid: np.ndarray, seen: np.ndarray, lh: float,
+               hold: bool = False) -> np.ndarray:
     """The family's total (formula ``prof`` + table) on ``grid`` with the knots beyond the visited ones
     (``seen``: indices, increasing) continued from the edge along the slope of the visited interval next to the
     edge's (both its knots have data on either side; the edge knot only on one; where only two knots are visited,
     the edge's interval), but no further than the family's formula goes from the edge (and held where the slope and the formula part ways):
     between the hold and the formula's own continuation, the two the table could do before. A continuation does
     not cross limp-home (``lh``, rad; nan: none): the spring's contact changes the regime there, so the knots
-    beyond it are held at the last continued value."""
+    beyond it are held at the last continued value. With ``hold`` (a friction level over angle, HOLD_FAMILIES) a
+    side without a visited interval next to its edge holds the edge's value (else that side is left as it is)."""
     out = total.copy()
     n = grid.size
     for side in (1, -1):
         e = seen[-1] if side == 1 else seen[0]
         a, b = (e - 2 * side, e - side) if e - 2 * side in seen else (e - side, e)
         if not (0 <= min(a, b) and max(a, b) < n) or a not in seen or b not in seen:
+            if hold:            # no visited interval next to the edge: no slope, the edge's value held
+                k = np.arange(e + 1, n) if side == 1 else np.arange(0, e)
+                out[k] = total[e]
             continue
         slope = (total[b] - total[a]) / (grid[b] - grid[a])
         k = e + side
@@ -109,15 +114,30 @@ def _continued(total: np.ndarray, prof: np.ndarray, grid: np.ndarray, seen: np.n
     return out
 
 
-def _toward_edge(new: np.ndarray, old: np.ndarray, total: np.ndarray, seen: np.ndarray) -> np.ndarray:
+# Families whose table's edge value is held where the slope rule would stop it (_continued's zero step) and the
+# visited-knot rule would go on along the formula: a friction level over angle. Its formula (slope, curvature) is
+# fitted together with the table, which takes its shape wherever the data are, so beyond them the formula's
+# curvature is not the data's (angle_dependent_friction@1 3B closed s41: curvature -0.244 N m, the 90 deg knot
+# 45 mN m below the truth's level against 5.6 mN m at the last reached knot, 84.4 deg; docs/diagnosis-history.md,
+# round 31 h31adf). A friction's level does not follow a trend into the stop: a hold is the smaller extrapolation;
+# where the interval next to the data's edge was not visited (no slope) the edge's value is held too (adf@1 random
+# closed s41: the data from 3.0 deg, limp-home; the -0.85 deg knot at the formula's curvature -0.48 N m, 33 mN m
+# under the truth's level).
+HOLD_FAMILIES = ("friction",)
+
+
+def _toward_edge(new: np.ndarray, old: np.ndarray, total: np.ndarray, seen: np.ndarray,
+                 hold: bool = False) -> np.ndarray:
     """Knots beyond the data's edge (``seen``'s first / last): ``new``'s step from the edge knot's value where it
     is smaller than ``old``'s and goes the same way, else ``old``'s value: the smaller of the two extrapolations
-    (as :func:`_continued` takes the smaller of the slope's and the formula's)."""
+    (as :func:`_continued` takes the smaller of the slope's and the formula's). With ``hold`` (a friction level
+    over angle) a zero step, the edge's value held, counts as the smaller one too (:data:`HOLD_FAMILIES`)."""
     out = new.copy()
     for e, ks in ((seen[-1], range(seen[-1] + 1, total.size)), (seen[0], range(seen[0]))):
         for k in ks:
             dn, do = new[k] - total[e], old[k] - total[e]
-            out[k] = total[e] + dn if dn * do > 0 and abs(dn) < abs(do) else old[k]
+            held = hold and dn == 0.0
+            out[k] = total[e] + dn if (dn * do > 0 or held) and abs(dn) <= abs(do) else old[k]
     return out
 
 
@@ -184,10 +204,11 @@ def continue_tables(final: F.FitResult, shaped, data: Data, note: dict | None = 
             table = np.array([p.init + p.scale * x[k] for p, k in zip(ps, idx)])
             total = prof + table
             lh = float(final.spec.base.limp_home_rad)
-            new = _continued(total, prof, grid, seen, lh)
+            hold = getattr(term, "family", None) in HOLD_FAMILIES
+            new = _continued(total, prof, grid, seen, lh, hold=hold and by_edge)
             if by_edge:     # no further from the data's edge than the visited knots' rule (round 23) goes
                 new = _toward_edge(new, _continued(total, prof, grid, visited, lh) if visited.size >= 2 else total,
-                                   total, seen)
+                                   total, seen, hold=hold)
             if np.allclose(new, total, rtol=0.0, atol=1e-12):
                 continue
             for p, k, v in zip(ps, idx, new - prof):
