@@ -11,7 +11,7 @@ after the selection the named family's map is learned from the data:
 
 Given the selected model's simulated angle (a replay of the recorded voltage whose segments restart at the
 readings: the observer residual of a closed loop would pull the model towards readings read through the wrong
-sensor), both are linear in their unknowns: the curve's knot values (piecewise-linear hat functions over
+sensor; but the filter, in a closed loop, on the observer's angle: :func:`_view`), both are linear in their unknowns: the curve's knot values (piecewise-linear hat functions over
 CURVE_KNOTS knots spanning the visited angles), the filter's weights w_1..w_{N-1} (w_0 = 1 - sum: unit gain at
 rest; N = FILTER_SPAN_S of samples, at most MAX_TAPS). They are found by penalized least squares
 
