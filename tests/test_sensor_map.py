@@ -148,6 +148,7 @@ def test_a_sensing_familys_map_replaces_the_later_effects_only_when_it_predicts_
     """sensor_map.replaces_later: the first step's sensor map against every step, by held-out error (no
     simulation here: the map, the fits and the held-out errors stand in)."""
     from types import SimpleNamespace
+    from etb_gym.diagnose import family_table  # noqa: F401  (imported before the patch: it binds heldout_error)
     from etb_gym.diagnose import penalized as P
     first, final = _fake_fit(["sensor_offset_gain"]), _fake_fit(["sensor_offset_gain", "shaft_flux_loss"])
     sref = SM.SensorRefinement("sensor_offset_gain", "curve", None, 1.0, 10.0, 1.0, kept=True, fit=first)
