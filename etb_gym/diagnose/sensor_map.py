@@ -11,9 +11,9 @@ after the selection the named family's map is learned from the data:
 
 Given the selected model's simulated angle (a replay of the recorded voltage whose segments restart at the
 readings: the observer residual of a closed loop would pull the model towards readings read through the wrong
-sensor; but the filter, in a closed loop, on the observer's angle: :func:`_view`), both are linear in their unknowns: the curve's knot values (piecewise-linear hat functions over
-CURVE_KNOTS knots spanning the visited angles), the filter's weights w_1..w_{N-1} (w_0 = 1 - sum: unit gain at
-rest; N = FILTER_SPAN_S of samples, at most MAX_TAPS). They are found by penalized least squares
+sensor; but the filter, in a closed loop, on the observer's angle with non-negative weights: :func:`_view`), both
+are linear in their unknowns: the curve's knot values (piecewise-linear hat functions over CURVE_KNOTS knots
+spanning the visited angles), the filter's weights w_1..w_{N-1} (w_0 = 1 - sum: unit gain at rest; N = FILTER_SPAN_S of samples, at most MAX_TAPS). They are found by penalized least squares
 
     minimize |W (z - X c)|^2 + lambda |D c|^2        D: second differences (the roughness), W: 1/noise per recording
 
@@ -144,11 +144,10 @@ def _bounded_fit(X, z, fold, D, lambdas):
     """:func:`penalized_fit` with 0 <= c <= 1 (scipy's bounded least squares on the penalized rows)."""
     p = X.shape[1]
     scale = max(float(np.sum(X * X)) / max(p, 1), 1e-300)
-    P = np.vstack([D, np.eye(p) * math.sqrt(RIDGE)])
 
     def solve(m, lam):
         A = np.vstack([X[m], math.sqrt(scale) * np.vstack([math.sqrt(lam) * D, math.sqrt(RIDGE) * np.eye(p)])])
-        b = np.concatenate([z[m], np.zeros(P.shape[0])])
+        b = np.concatenate([z[m], np.zeros(D.shape[0] + p)])
         return lsq_linear(A, b, bounds=(0.0, 1.0), method="bvls").x
 
     parts = [(fold == k) for k in (0, 1)]
