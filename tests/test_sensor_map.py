@@ -148,6 +148,7 @@ def test_a_sensing_familys_map_replaces_the_later_effects_only_when_it_predicts_
     """sensor_map.replaces_later: the first step's sensor map against every step, by held-out error (no
     simulation here: the map, the fits and the held-out errors stand in)."""
     from types import SimpleNamespace
+    from etb_gym.diagnose import family_table  # noqa: F401  (imported before the patch: it binds heldout_error)
     from etb_gym.diagnose import penalized as P
     first, final = _fake_fit(["sensor_offset_gain"]), _fake_fit(["sensor_offset_gain", "shaft_flux_loss"])
     sref = SM.SensorRefinement("sensor_offset_gain", "curve", None, 1.0, 10.0, 1.0, kept=True, fit=first)
@@ -182,7 +183,7 @@ def test_the_reading_curve_and_the_parameters_alternate_while_the_replay_falls(m
     learned = iter(range(1, 20))
     monkeypatch.setattr(SM, "learn", lambda spec, x, data, kind: (next(learned), 1.0, 10.0, 5.0))
     rss = {1: 80.0, 2: 70.0, 3: 65.0, 4: 64.5, 5: 10.0}          # by the curve learned last (the 5th is not reached)
-    monkeypatch.setattr(SM, "replay_rss", lambda spec, x, data: rss[spec.sensor_map["curve"]] if spec.sensor_map
+    monkeypatch.setattr(SM, "replay_rss", lambda spec, x, data, kind="curve": rss[spec.sensor_map["curve"]] if spec.sensor_map
                         else 100.0)
     monkeypatch.setattr(F, "fit", lambda spec, data, x, max_nfev: Fit_(spec, x))
     monkeypatch.setattr(F, "evaluate", lambda spec, data, x: np.zeros(3))
@@ -214,3 +215,45 @@ def test_the_offset_and_gain_candidate_bends_with_its_bow_and_keeps_a_learned_cu
     np.testing.assert_allclose(s2.apply(np.arange(4) * DT, phi), 1.01 * (phi + bow + extra) + 0.2, atol=1e-3)
     _, s0 = held.build(held.x_from_values({**vals, "sensor_offset_gain.bow_deg": 0.0}))
     assert s0.curve == learned                                    # no bow: the learned curve as it was
+
+
+def test_a_closed_loops_reading_filter_is_learned_on_the_observers_angle():
+    """sensor_map._view (round 31): in a closed loop the filter is learned on the observer's angle (the replay
+    whose segments restart at the readings drifts there: the controller's voltage reacted to the rig's plate),
+    its weights held non-negative. The truth reads through a 10-sample moving average; the model is the truth's
+    plant with the pure delay that fits the average best (4.5 samples)."""
+    from etb_gym.diagnose import truth_shapes as ts
+    from etb_gym.diagnose.candidates import CANDIDATES
+    from etb_gym.diagnose.model import Spec, prepare
+    from etb_gym.diagnose.synthetic import make_recording
+    truth = make_plant("3B", substeps=20)
+    rec = make_recording(truth, np.random.default_rng(3), duration_s=3.0, closed=True, noise_deg=0.01,
+                         reading=ts.SensorFilter(average_samples=10, profile=1.0))
+    data = prepare([rec], 12.0, residual="observer")
+    spec = Spec(make_plant("3B", substeps=5)).with_candidate(CANDIDATES["sensor_delay"])
+    x = spec.x_from_values({"sensor_delay.delay_s": 4.5e-3})
+    assert spec.build(x)[1].delay_s == pytest.approx(4.5e-3)
+    assert SM._view(data, "filter").recs[0].residual == "observer"      # the filter's view keeps the observer
+    assert SM._view(data, "curve").recs[0].residual == "replay"         # the curve's does not
+    params, lam, cv0, cv1 = SM.learn(spec, x, data, "filter")
+    assert cv1 < 0.6 * cv0                                              # a lag shaped like the average is learned
+    w = np.asarray(params.weights)
+    assert np.min(w) >= 0.0 and sum(w) == pytest.approx(1.0)
+    assert params.mean_lag_periods == pytest.approx(4.5, abs=0.6)
+    assert np.sum(w[:10]) > 0.8                                         # its weight within the 10 samples
+
+
+def test_a_non_negative_reading_filter_is_a_moving_average_without_a_tail():
+    """fit_filter(nonneg=True): the bounded fit recovers the average and puts no negative weight anywhere
+    (the unconstrained fit scatters small weights of either sign over the kernel's tail)."""
+    t, u = _trajectory(hold=40, ramp=8)
+    rng = np.random.default_rng(2)
+    noise = 0.01
+    y = fir_series(u, np.full(6, 1.0 / 6)) + rng.normal(0.0, noise, u.size)
+    free, _, _ = SM.fit_filter([(y, u, 1.0 / noise, t)], SensorModel(), DT)
+    assert np.min(free.weights) < 0.0
+    params, lam, cv1 = SM.fit_filter([(y, u, 1.0 / noise, t)], SensorModel(), DT, nonneg=True)
+    w = np.asarray(params.weights)
+    assert np.min(w) >= 0.0 and sum(w) == pytest.approx(1.0)
+    np.testing.assert_allclose(w[:6], 1.0 / 6, atol=0.03)
+    assert params.mean_lag_periods == pytest.approx(2.5, abs=0.1)

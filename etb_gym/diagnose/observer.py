@@ -52,9 +52,11 @@ def gains(dt_s: float, n_states: int, omega_o: float | None = None) -> np.ndarra
     return L
 
 
-def observe(plant, sensor, rd, omega_o: float | None = None):
+def observe(plant, sensor, rd, omega_o: float | None = None, read=None):
     """One-step predicted reading [deg] and current [A] along recording ``rd`` (model.RecData) with output
-    injection; (None, reason) where the simulation fails, else ((angle, current), None)."""
+    injection; (None, reason) where the simulation fails, else ((angle, current), None). ``read``: the sensor
+    that reads the observer's angles out (default ``sensor``; sensor_map.py reads the plate's own angle through
+    ``sensor`` without its delay, the injection still comparing the readings at ``sensor``'s lag)."""
     r = rd.rec
     n = r.n
     y_rad = np.radians(sensor.invert(np.asarray(r.angle_deg, float)))
@@ -76,5 +78,5 @@ def observe(plant, sensor, rd, omega_o: float | None = None):
     if done < n - 1:
         return None, (f"the simulated state became non-finite in {r.name} at t = {float(r.t_s[done]):.3f} s "
                       "(observer residual)")
-    ang = sensor.apply(r.t_s, np.degrees(X[:, 0]))
+    ang = (sensor if read is None else read).apply(r.t_s, np.degrees(X[:, 0]))
     return (ang, X[:, 2].copy()), None

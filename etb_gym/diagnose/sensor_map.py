@@ -11,9 +11,9 @@ after the selection the named family's map is learned from the data:
 
 Given the selected model's simulated angle (a replay of the recorded voltage whose segments restart at the
 readings: the observer residual of a closed loop would pull the model towards readings read through the wrong
-sensor), both are linear in their unknowns: the curve's knot values (piecewise-linear hat functions over
-CURVE_KNOTS knots spanning the visited angles), the filter's weights w_1..w_{N-1} (w_0 = 1 - sum: unit gain at
-rest; N = FILTER_SPAN_S of samples, at most MAX_TAPS). They are found by penalized least squares
+sensor; but the filter, in a closed loop, on the observer's angle with non-negative weights: :func:`_view`), both
+are linear in their unknowns: the curve's knot values (piecewise-linear hat functions over CURVE_KNOTS knots
+spanning the visited angles), the filter's weights w_1..w_{N-1} (w_0 = 1 - sum: unit gain at rest; N = FILTER_SPAN_S of samples, at most MAX_TAPS). They are found by penalized least squares
 
     minimize |W (z - X c)|^2 + lambda |D c|^2        D: second differences (the roughness), W: 1/noise per recording
 
@@ -31,11 +31,13 @@ import dataclasses
 import math
 
 import numpy as np
+from scipy.optimize import lsq_linear
 
 from ..components.effects_maps import SensorMapParams
 from ..components.sensor import MAX_FILTER_TAPS, ReadingFilterParams
 from . import fit as F
 from .model import Data, SimulationFailed, replay_view, restart_view, simulate
+from .observer import observe
 from .shapes import hat_weights
 
 SENSING_MAPS = {"sensor_offset_gain": "curve", "sensor_delay": "filter"}
@@ -93,10 +95,13 @@ def _second_differences(p: int) -> np.ndarray:
     return D
 
 
-def penalized_fit(X: np.ndarray, z: np.ndarray, fold: np.ndarray, D: np.ndarray, lambdas=LAMBDAS):
+def penalized_fit(X: np.ndarray, z: np.ndarray, fold: np.ndarray, D: np.ndarray, lambdas=LAMBDAS,
+                  nonneg: bool = False):
     """(coefficients on all rows at the chosen weight, relative weight, CV error of the zero map, CV error of
     the map): two-fold cross-validation (``fold`` 0/1 per row) of ``minimize |z - X c|^2 + lam |D c|^2`` over
-    ``lambdas`` (relative to the design's mean squared column norm)."""
+    ``lambdas`` (relative to the design's mean squared column norm); ``nonneg``: with 0 <= c <= 1."""
+    if nonneg:
+        return _bounded_fit(X, z, fold, D, lambdas)
     p = X.shape[1]
     scale = max(float(np.sum(X * X)) / max(p, 1), 1e-300)
     P = D.T @ D
@@ -119,30 +124,74 @@ def penalized_fit(X: np.ndarray, z: np.ndarray, fold: np.ndarray, D: np.ndarray,
     return c, float(lam), cv0, float(cv1)
 
 
-def _angles(spec, x, data: Data, undelayed: bool = False):
+def _view(data: Data, kind: str) -> Data:
+    """The view a ``kind`` map is learned and judged on: the replay whose segments restart at the readings, but
+    for the filter the closed-loop recordings keep their observer residual. Why: in a closed loop the recorded
+    voltage is the controller's reaction to the rig's plate, so a replay drifts wherever the model places a
+    stick-slip event a little differently (degrees within a 0.5 s segment), and the filter's regression would
+    read a plate angle that is not the one the sensor saw (sensor_delay@2 random s41 closed, a 12-sample moving
+    average: the restart replay's reference error 225 noise units squared per sample, no filter kept, twin 197x).
+    The observer holds the model's angle to the readings, compared at the sensor's lag, so its angle follows
+    the plate's timing while its shape is the model's physics. The curve keeps the replay: the observer's pull
+    towards readings read through the wrong static map would hide part of the map."""
+    v = restart_view(replay_view(data))
+    if kind != "filter":
+        return v
+    return dataclasses.replace(v, recs=[dataclasses.replace(r, residual=rd.residual) for rd, r in zip(data.recs, v.recs)])
+
+
+def _bounded_fit(X, z, fold, D, lambdas):
+    """:func:`penalized_fit` with 0 <= c <= 1 (scipy's bounded least squares on the penalized rows)."""
+    p = X.shape[1]
+    scale = max(float(np.sum(X * X)) / max(p, 1), 1e-300)
+
+    def solve(m, lam):
+        A = np.vstack([X[m], math.sqrt(scale) * np.vstack([math.sqrt(lam) * D, math.sqrt(RIDGE) * np.eye(p)])])
+        b = np.concatenate([z[m], np.zeros(D.shape[0] + p)])
+        return lsq_linear(A, b, bounds=(0.0, 1.0), method="bvls").x
+
+    parts = [(fold == k) for k in (0, 1)]
+    best = (math.inf, None)
+    for lam in lambdas:
+        err = 0.0
+        for k in (0, 1):
+            e = z[parts[1 - k]] - X[parts[1 - k]] @ solve(parts[k], lam)
+            err += float(e @ e)
+        if err < best[0]:
+            best = (err, lam)
+    cv1, lam = best
+    return solve(np.ones(z.size, bool), lam), float(lam), float(z @ z), float(cv1)
+
+
+def _angles(spec, x, data: Data, undelayed: bool = False, kind: str = "curve"):
     """(per recording (reading [deg], the model's angle as its sensor saw it before gain and offset [deg],
-    1/noise, time [s]), the model's sensor) from a replay whose segments restart at the readings (there the
-    sensor's delay does not move the plate, so ``undelayed`` reads the plate's own angle); None where it cannot
-    be simulated."""
-    view = restart_view(replay_view(data))
+    1/noise, time [s]), the model's sensor) on the ``kind`` map's view (:func:`_view`: on a replay whose
+    segments restart at the readings the sensor's delay does not move the plate, so ``undelayed`` reads the
+    plate's own angle; the observer injects the readings at the sensor's lag and ``undelayed`` reads its angle
+    without the delay); None where it cannot be simulated."""
+    view = _view(data, kind)
     plant, sensor = spec.build(x)
-    pred = simulate(plant, dataclasses.replace(sensor, delay_s=0.0) if undelayed else sensor, view)
-    if pred is None:
-        return None
+    read = dataclasses.replace(sensor, delay_s=0.0) if undelayed else sensor
     out = []
-    for rd, (ang, _) in zip(view.recs, pred):
-        u = (ang - sensor.offset_deg) / sensor.gain
-        ok = np.isfinite(u)
-        if not np.all(ok):
+    for rd in view.recs:
+        if rd.residual == "observer":
+            got, _ = observe(plant, sensor, rd, read=read)
+        else:
+            got = simulate(plant, read, dataclasses.replace(view, recs=[rd]))
+            got = None if got is None else got[0]
+        if got is None:
+            return None
+        u = (got[0] - sensor.offset_deg) / sensor.gain
+        if not np.all(np.isfinite(u)):
             return None
         out.append((np.asarray(rd.rec.angle_deg, float), u, 1.0 / rd.noise_deg, np.asarray(rd.rec.t_s, float)))
     return out, sensor
 
 
-def replay_rss(spec, x, data: Data) -> float:
-    """The model's sum of squared residuals on the replay whose segments restart at the readings (the view
-    :func:`_angles` learns on; on an open-loop recording the fit's own residual)."""
-    r = F.evaluate(spec, restart_view(replay_view(data)), x)
+def replay_rss(spec, x, data: Data, kind: str = "curve") -> float:
+    """The model's sum of squared residuals on the ``kind`` map's view (:func:`_view`; on an open-loop recording
+    the fit's own residual)."""
+    r = F.evaluate(spec, _view(data, kind), x)
     return float(r @ r)
 
 
@@ -179,9 +228,10 @@ def fit_curve(readings, sensor):
     return params, lam, cv0, cv1
 
 
-def fit_filter(readings, sensor, dt_s: float):
+def fit_filter(readings, sensor, dt_s: float, nonneg: bool = False):
     """The reading filter's FIR kernel (replacing the model's delay) on ``readings`` whose model angle is the
-    plate's own (no delay): (ReadingFilterParams, lam, cv1)."""
+    plate's own (no delay): (ReadingFilterParams, lam, cv1). ``nonneg``: every weight in [0, 1] (the closed
+    loop's observer view, :func:`learn`)."""
     n = int(min(MAX_TAPS, max(3, round(FILTER_SPAN_S / dt_s))))
     X, z, fold = [], [], []
     for y, u, w, t in readings:             # u: the plate's own angle (no delay)
@@ -193,7 +243,9 @@ def fit_filter(readings, sensor, dt_s: float):
         fold.append(_folds(t))
     X, z, fold = np.vstack(X), np.concatenate(z), np.concatenate(fold)
     # the zero map of this fit is "no delay"; the model's own delay is the reference the filter must beat
-    c, lam, _, cv1 = penalized_fit(X, z, fold, _second_differences(n - 1))
+    c, lam, _, cv1 = penalized_fit(X, z, fold, _second_differences(n - 1), nonneg=nonneg)
+    if nonneg and np.sum(c) > 1.0:          # the newest angle's weight 1 - sum(c) below 0: none instead
+        c = c / np.sum(c)
     w_all = np.concatenate([[1.0 - float(np.sum(c))], c])
     return ReadingFilterParams(weights=tuple(w_all)), lam, cv1
 
@@ -206,16 +258,22 @@ def _reference_error(readings, sensor) -> float:
 def learn(spec, x, data: Data, kind: str):
     """One fit of the ``kind`` map ("curve", "filter") on the model (``spec``, ``x``): (params, lam, cv0, cv1)
     or None (nothing to learn: the model cannot be replayed, too small a range)."""
-    got = _angles(spec, x, data)
+    got = _angles(spec, x, data, kind=kind)
     if got is None:
         return None
     readings, sensor = got
     if kind == "curve":
         return fit_curve(readings, sensor)
-    plate = _angles(spec, x, data, undelayed=True)
+    plate = _angles(spec, x, data, undelayed=True, kind=kind)
     if plate is None:
         return None
-    params, lam, cv1 = fit_filter(plate[0], sensor, data.dt_s)
+    # in a closed loop's observer view (:func:`_view`) the observer's angle carries the readings it was pulled
+    # to, so a free kernel also fits the loop's feedback: alternating weights at its far end (sensor_delay@2
+    # random s41 closed, a 12-sample moving average: taps 24-29 +0.26, +0.13, -0.77, +0.47, the twin 10.5x
+    # where the true average gives 4.6x). A reading filter averages past angles (a moving average, a first-order
+    # lag, a delay between two samples), so there its weights are held non-negative.
+    closed = any(rd.residual == "observer" for rd in _view(data, kind).recs)
+    params, lam, cv1 = fit_filter(plate[0], sensor, data.dt_s, nonneg=closed)
     return params, lam, _reference_error(readings, sensor), cv1
 
 
@@ -265,7 +323,7 @@ def refine_sensor(cur: F.FitResult, family_id: str, data: Data, log=print) -> Se
         spec = dataclasses.replace(spec, sensor_map=held(kind, again[0]))
         fr = dataclasses.replace(fr, spec=spec, rss=float(np.sum(F.evaluate(spec, data, fr.x) ** 2)))
         x = fr.x
-        now = replay_rss(spec, x, data) if passes > 1 else None
+        now = replay_rss(spec, x, data, kind) if passes > 1 else None
         if k and now is not None and not now < (1.0 - PASS_GAIN) * prev:
             break
         prev = now
@@ -275,11 +333,11 @@ def refine_sensor(cur: F.FitResult, family_id: str, data: Data, log=print) -> Se
     # sensor_delay@2 3B s7 closed, CV error -11 %, observer rss not lower); the refit (on the fit's residual, the
     # observer's in a closed loop) may move away from that view, so there the map on the selected model's
     # parameters competes with it (3B s7: the refitted model replayed worse than the one without the map)
-    before = replay_rss(cur.spec, cur.x, data)
+    before = replay_rss(cur.spec, cur.x, data, kind)
     held_spec = dataclasses.replace(cur.spec, sensor_map=held(kind, ref.params))
-    tries = [(replay_rss(fr.spec, fr.x, data), fr)]
+    tries = [(replay_rss(fr.spec, fr.x, data, kind), fr)]
     if any(rd.residual == "observer" for rd in data.recs):
-        tries.append((replay_rss(held_spec, cur.x, data), dataclasses.replace(cur, spec=held_spec)))
+        tries.append((replay_rss(held_spec, cur.x, data, kind), dataclasses.replace(cur, spec=held_spec)))
     after, fr = min(tries, key=lambda a: a[0])
     if fr.spec is held_spec:
         fr = dataclasses.replace(fr, rss=float(np.sum(F.evaluate(held_spec, data, fr.x) ** 2)))
