@@ -611,6 +611,14 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
                 final = refit_weak(final, data, significant, replay_note)
                 from .closed_twin import continue_tables    # closed loops: a table beyond the visited angles
                 final = continue_tables(final, shaped, data, tables_note, significant)
+                from .closed_twin import unseen_closing_play    # a free play's side the recordings never reached
+                final = unseen_closing_play(final, data, tables_note)
+                u = tables_note.get("unseen_closing_play")
+                if u:
+                    log(f"  backlash: closing side never reached (reach {u['reach_below_limp_home_rad']:.5f} rad, "
+                        f"play {u['play_rad']:.5f}): closing ratio {u['closing_ratio_fitted']:.2f} -> "
+                        f"{u['closing_ratio']:.2f} ({'kept' if u['kept'] else 'not kept'}; cost {u['cost_before']:.0f}"
+                        f" -> {u['cost_after']:.0f})")
             else:
                 final = nominal
             lap("polish")
