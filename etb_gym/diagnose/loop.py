@@ -40,6 +40,9 @@ NULL_SHIFTS = 30
 TRIM = 4.0
 LOOP_Z = 8.0            # closed loop when the z-score exceeds this (measured: scripts/loop_detection.py)
 MAX_SAMPLES = 200_000   # longer recordings are tested on their first MAX_SAMPLES samples
+R2_ROUNDOFF = 1e-9      # a version whose aligned and shifted R^2 all lie below this explains nothing: its z-score
+#                         would score round-off (an open-loop PRBS's trimmed samples: R^2 1e-28 against 3e-30 +- 2e-30,
+#                         z 55; the figure moved with the BLAS/LAPACK build), so that version is not scored
 
 
 def _lagmat(x: np.ndarray, lags, n0: int, n1: int) -> np.ndarray:
@@ -90,6 +93,6 @@ def loop_evidence(voltage_V, angle_deg, dt_s: float, seed: int = 0) -> float:
         stat = r2(0)
         null = np.array([r2(int(k)) for k in shifts])
         sd = float(np.std(null))
-        if sd > 0:
+        if sd > 0 and max(stat, float(np.max(null))) > R2_ROUNDOFF:
             best = max(best, (stat - float(np.mean(null))) / sd)
     return float(best)
