@@ -544,21 +544,10 @@ def current_start(spec, data: Data, x0: np.ndarray, n_old: int, diff_step: float
         fun.failure = None
         return r if ok else None
 
-    def step(x, r, idx, rows):
-        J = np.empty((r.size, len(idx)))
-        for j, k in enumerate(idx):
-            xk = x.copy()
-            xk[k] += diff_step
-            rk = run(xk)
-            if rk is None:
-                return None
-            J[:, j] = (rk - r) / diff_step
-        d, *_ = np.linalg.lstsq(J[rows], -r[rows], rcond=1e-8)
-        if not np.all(np.isfinite(d)):
-            return None
-        out = x.copy()
-        out[idx] = np.clip(x[idx] + d, lo[idx] + 1e-9, hi[idx] - 1e-9)
-        return out
+    def step(x, r, idx, rows):             # one Gauss-Newton step of ``idx`` on the residual's ``rows``
+        J = F.profile_jacobian(fun, x, r, idx, lo, hi, diff_step)
+        fun.failure = None
+        return None if J is None else F.profile_step(J[rows], r[rows], x, idx, lo, hi)
 
     r0 = run(x0)
     if r0 is None or not levels:

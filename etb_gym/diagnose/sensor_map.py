@@ -99,29 +99,34 @@ def penalized_fit(X: np.ndarray, z: np.ndarray, fold: np.ndarray, D: np.ndarray,
                   nonneg: bool = False):
     """(coefficients on all rows at the chosen weight, relative weight, CV error of the zero map, CV error of
     the map): two-fold cross-validation (``fold`` 0/1 per row) of ``minimize |z - X c|^2 + lam |D c|^2`` over
-    ``lambdas`` (relative to the design's mean squared column norm); ``nonneg``: with 0 <= c <= 1."""
-    if nonneg:
-        return _bounded_fit(X, z, fold, D, lambdas)
+    ``lambdas`` (relative to the design's mean squared column norm); ``nonneg``: with 0 <= c <= 1 (scipy's
+    bounded least squares on the penalized rows)."""
     p = X.shape[1]
     scale = max(float(np.sum(X * X)) / max(p, 1), 1e-300)
-    P = D.T @ D
-    cv0 = float(z @ z)
     parts = [(fold == k) for k in (0, 1)]
-    grams = [(X[m].T @ X[m], X[m].T @ z[m]) for m in parts]
+    if nonneg:
+        def solve(k, lam):                  # k: the fold fitted (0, 1) or None for all rows
+            m = parts[k] if k is not None else np.ones(z.size, bool)
+            A = np.vstack([X[m], math.sqrt(scale) * np.vstack([math.sqrt(lam) * D, math.sqrt(RIDGE) * np.eye(p)])])
+            return lsq_linear(A, np.concatenate([z[m], np.zeros(D.shape[0] + p)]), bounds=(0.0, 1.0), method="bvls").x
+    else:
+        P = D.T @ D
+        grams = [(X[m].T @ X[m], X[m].T @ z[m]) for m in parts] + [(X.T @ X, X.T @ z)]
+
+        def solve(k, lam):
+            G, b = grams[k if k is not None else 2]
+            return np.linalg.solve(G + scale * (lam * P + RIDGE * np.eye(p)), b)
     best = (math.inf, None)
     for lam in lambdas:
         err = 0.0
         for k in (0, 1):
-            G, b = grams[k]
-            c = np.linalg.solve(G + scale * (lam * P + RIDGE * np.eye(p)), b)
             m = parts[1 - k]
-            e = z[m] - X[m] @ c
+            e = z[m] - X[m] @ solve(k, lam)
             err += float(e @ e)
         if err < best[0]:
             best = (err, lam)
     cv1, lam = best
-    c = np.linalg.solve(X.T @ X + scale * (lam * P + RIDGE * np.eye(p)), X.T @ z)
-    return c, float(lam), cv0, float(cv1)
+    return solve(None, lam), float(lam), float(z @ z), float(cv1)
 
 
 def _view(data: Data, kind: str) -> Data:
@@ -138,29 +143,6 @@ def _view(data: Data, kind: str) -> Data:
     if kind != "filter":
         return v
     return dataclasses.replace(v, recs=[dataclasses.replace(r, residual=rd.residual) for rd, r in zip(data.recs, v.recs)])
-
-
-def _bounded_fit(X, z, fold, D, lambdas):
-    """:func:`penalized_fit` with 0 <= c <= 1 (scipy's bounded least squares on the penalized rows)."""
-    p = X.shape[1]
-    scale = max(float(np.sum(X * X)) / max(p, 1), 1e-300)
-
-    def solve(m, lam):
-        A = np.vstack([X[m], math.sqrt(scale) * np.vstack([math.sqrt(lam) * D, math.sqrt(RIDGE) * np.eye(p)])])
-        b = np.concatenate([z[m], np.zeros(D.shape[0] + p)])
-        return lsq_linear(A, b, bounds=(0.0, 1.0), method="bvls").x
-
-    parts = [(fold == k) for k in (0, 1)]
-    best = (math.inf, None)
-    for lam in lambdas:
-        err = 0.0
-        for k in (0, 1):
-            e = z[parts[1 - k]] - X[parts[1 - k]] @ solve(parts[k], lam)
-            err += float(e @ e)
-        if err < best[0]:
-            best = (err, lam)
-    cv1, lam = best
-    return solve(np.ones(z.size, bool), lam), float(lam), float(z @ z), float(cv1)
 
 
 def _angles(spec, x, data: Data, undelayed: bool = False, kind: str = "curve"):
