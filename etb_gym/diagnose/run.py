@@ -23,7 +23,8 @@ from .measurement import DEFAULT_RESOLUTION_DEG
 from .model import (STEPPER_ORDER, Data, SimulationFailed, Spec, angle_residuals_deg, prepare, replay_view,
                     restart_view, simulate)
 from . import disturbance as D
-from .result import QUANT_K, RMS_K, SCHEMA, Result, current_mismatch, significant_mismatch, significant_residual  # noqa: F401,E501
+from .result import (INPUT_K, QUANT_K, RMS_K, SCHEMA, Result, current_mismatch, input_correlation,  # noqa: F401
+                     significant_mismatch, significant_residual)
 
 _significant_residual = significant_residual
 
@@ -575,10 +576,16 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
             # still checks the final model's current: result.current_counts)
             model = fr.spec.build(fr.x)
             return significant_mismatch(data, angle_residuals_deg(simulate(*model, data), data), *model, ref=ref0,
-                                        current_ref=cur0, current=not fr.spec.candidates)
+                                        current_ref=cur0, current=not fr.spec.candidates,
+                                        input_corr=not fr.spec.candidates)
 
         sig0 = significant(nominal)
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
+        xin = [x for x in input_correlation(data, angle_residuals_deg(simulate(*nominal.spec.build(nominal.x), data),
+                                                                      data)) if x is not None]
+        if xin:
+            log(f"  its angle residual against the voltage (whitened): {max(xin):.2f}x the 99 % bound "
+                f"(counts above {INPUT_K:g}x)")
         shaped, replay_note, tables_note = None, {}, {}
         if sig0:
             # the search starts from the fit's own optimum: a model that misses an effect drifts on the
