@@ -18,18 +18,20 @@ def _ar1(rng, a, n, sigma=1.0):
     return x * np.sqrt(1.0 - a * a)
 
 
-def _rec(rng, noise, residual="replay"):
+def _rec(rng, noise, residual="replay", resolution=0.022):
     """A recording: a slowly varying drive voltage, readings resting at 3 deg for the first and last 1.5 s
-    (rest runs) and the reading noise ``noise`` on them."""
+    (rest runs) and the reading noise ``noise`` on them; a 12-bit grid of ``resolution``."""
     u = 6.0 * np.sin(np.linspace(0.0, 18.0, N)) + _ar1(rng, 0.995, N, 0.3)
     angle = 3.0 + noise
     rec = SimpleNamespace(voltage_V=u, angle_deg=angle)
-    return SimpleNamespace(rec=rec, rest=[(0, 1500), (N - 1500, N)], residual=residual)
+    floor = float(np.sqrt(np.std(noise) ** 2 + resolution ** 2 / 12.0))
+    return SimpleNamespace(rec=rec, rest=[(0, 1500), (N - 1500, N)], residual=residual, noise_deg=floor,
+                           resolution_deg=resolution)
 
 
 def test_noise_alone_does_not_follow_the_voltage_white_or_coloured():
     rng = np.random.default_rng(1)
-    for a in (0.0, 0.7):
+    for a in (0.0, 0.5, 0.7):
         for _ in range(5):
             noise = 0.03 * _ar1(rng, a, N)
             rd = _rec(rng, noise)
@@ -55,3 +57,14 @@ def test_observer_residuals_are_not_tested():
     noise = 0.03 * _ar1(rng, 0.0, N)
     rd = _rec(rng, noise, residual="observer")
     assert input_correlation(SimpleNamespace(recs=[rd]), [noise]) == [None]
+
+
+def test_a_residual_whose_quantization_is_not_dithered_is_not_tested():
+    """Reading noise below the resolution step: the quantization error follows the angle (not tested); the same
+    residual on a grid the noise dithers is."""
+    rng = np.random.default_rng(4)
+    noise = 0.01 * _ar1(rng, 0.0, N)
+    rd = _rec(rng, noise, resolution=0.022)
+    assert input_correlation(SimpleNamespace(recs=[rd]), [noise]) == [None]
+    rd = _rec(rng, noise, resolution=0.005)
+    assert input_correlation(SimpleNamespace(recs=[rd]), [noise])[0] is not None

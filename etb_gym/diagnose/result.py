@@ -93,8 +93,9 @@ def current_counts(ratios: list, ref: list | None = None) -> bool:
 
 def reading_colour(rd) -> float:
     """The AR(1) coefficient of a recording's reading noise, from its rest runs as the noise floor takes it
-    (measurement._rest_spread: each run about its cubic trend, the median of the runs' colours; below
-    COLOUR_MIN the noise counts as white, 0)."""
+    (measurement._rest_spread: each run about its cubic trend, the median of the runs' colours; here without the
+    floor's COLOUR_MIN cut: a residual of AR(1) 0.5 noise left unwhitened follows a slow voltage at 3x the bound,
+    clean 3B s38 open)."""
     from . import measurement as M
     y = np.asarray(rd.rec.angle_deg, float)
     runs = []
@@ -104,15 +105,17 @@ def reading_colour(rd) -> float:
             runs.append(y[a:b] - np.polyval(np.polyfit(k, y[a:b], M.REST_TREND_DEGREE), k))
     if not runs:
         return 0.0
-    c = float(np.median([M.noise_colour([r]) for r in runs]))
-    return c if c >= M.COLOUR_MIN else 0.0
+    return float(np.median([M.noise_colour([r]) for r in runs]))
 
 
 def input_correlation(data: Data, res: list) -> list:
     """Per recording scored by the replay (open loop): how far its angle residual ``res`` follows the recorded
     voltage, max |rho(e, u)| over lags 0-50 samples (locate.input_xcorr) over the 99 % bound of white noise, with
     e the residual whitened by the reading noise's own colour (:func:`reading_colour`: e_k = r_k - a r_(k-1),
-    white where the residual is the noise alone whatever the voltage's spectrum); None for the others.
+    white where the residual is the noise alone whatever the voltage's spectrum); None for the others, and for a
+    recording whose reading noise (the floor without the resolution's q^2/12) is below the resolution step q:
+    without that dither the quantization error is a fixed function of the angle, which follows the voltage
+    (clean 3B s36 open, 0.01 deg noise on a 0.022 deg grid: 6.8x the bound; Widrow's dither condition).
 
     Why. On a random nameplate the calibration frees friction, preload and rate against the plant file's
     10-20 %; a torque-constant error scales the drive torque c_M i, which the three levels balance in the same
@@ -128,6 +131,10 @@ def input_correlation(data: Data, res: list) -> list:
         u = np.asarray(rd.rec.voltage_V, float)
         r = np.asarray(r, float)
         if rd.residual != "replay" or r.size < 20 or not np.all(np.isfinite(r)) or np.std(u) <= 0:
+            out.append(None)
+            continue
+        q = float(rd.resolution_deg or 0.0)
+        if rd.noise_deg ** 2 - q ** 2 / 12.0 < q ** 2:         # not dithered: quantization follows the angle
             out.append(None)
             continue
         a = reading_colour(rd)
