@@ -143,9 +143,15 @@ def input_correlation(data: Data, res: list) -> list:
     return out
 
 
+def follows_voltage(data: Data, res: list) -> tuple[bool, float | None]:
+    """(does a replayed recording's residual ``res`` follow the voltage beyond INPUT_K, the largest
+    :func:`input_correlation` ratio or None where none was tested)."""
+    xs = [x for x in input_correlation(data, res) if x is not None]
+    return (bool(xs) and max(xs) > INPUT_K), (max(xs) if xs else None)
+
+
 def significant_mismatch(data: Data, res: list, plant, sensor, z_ref: float | None = None,
-                         ref: list | None = None, current_ref: list | None = None, current: bool = True,
-                         input_corr: bool = False) -> bool:
+                         ref: list | None = None, current_ref: list | None = None, current: bool = True) -> bool:
     """:func:`significant_residual`, or a replayed current further from the model's than RMS_K x its noise
     (:func:`current_mismatch`), or a persistent structure in the current residual or in the angle
     innovation over steady motion of a recording scored by the observer (a closed loop: the loop hides an
@@ -155,12 +161,10 @@ def significant_mismatch(data: Data, res: list, plant, sensor, z_ref: float | No
     the rule that accepts a candidate for it) no longer counts. ``ref``: the nominal model's Structures
     (disturbance.persistent_mismatch): the model's are then measured on their yardsticks, and ``z_ref``
     defaults to their deciding z. ``current_ref``: the nominal model's :func:`current_mismatch` ratios
-    (:func:`current_counts`); ``current`` False: the replayed current is not tested. ``input_corr``: a replayed
-    angle residual that follows the voltage beyond INPUT_K (:func:`input_correlation`) counts too (the
-    calibrated nominal model's test, where it starts the search; not the verdict's)."""
+    (:func:`current_counts`); ``current`` False: the replayed current is not tested. (The calibrated nominal
+    model's residual following the voltage, :func:`follows_voltage`, starts the search in run.py; it is not a test
+    of this function, so not the verdict's.)"""
     if significant_residual(data, res):
-        return True
-    if input_corr and any(x is not None and x > INPUT_K for x in input_correlation(data, res)):
         return True
     if current and current_counts(current_mismatch(data, plant, sensor), current_ref):
         return True
