@@ -23,7 +23,8 @@ from .measurement import DEFAULT_RESOLUTION_DEG
 from .model import (STEPPER_ORDER, Data, SimulationFailed, Spec, angle_residuals_deg, prepare, replay_view,
                     restart_view, simulate)
 from . import disturbance as D
-from .result import QUANT_K, RMS_K, SCHEMA, Result, current_mismatch, significant_mismatch, significant_residual  # noqa: F401,E501
+from .result import (INPUT_K, QUANT_K, RMS_K, SCHEMA, Result, current_mismatch, follows_voltage,  # noqa: F401
+                     significant_mismatch, significant_residual)
 
 _significant_residual = significant_residual
 
@@ -569,16 +570,27 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
 
         cur0 = current_mismatch(data, *nominal.spec.build(nominal.x))   # open loop: the replayed current's miss
 
+        # an open loop's calibrated (polished) nominal residual that follows the voltage (result.input_correlation:
+        # the dynamic part of an effect whose static part the levels carried) starts the search: every model
+        # without an effect (the calibration's own optimum, select's start, a refit of it) then counts as
+        # significant, so the screening runs from where the calibration stopped
+        follows, x_in = follows_voltage(data, res0)
+
         def significant(fr: F.FitResult) -> bool:
             # the replayed current decides whether the nominal model leaves something to explain; with an effect
             # in the model the search stops on the angle and the structures as before (report.assemble's verdict
             # still checks the final model's current: result.current_counts)
+            if follows and not fr.spec.candidates:
+                return True
             model = fr.spec.build(fr.x)
             return significant_mismatch(data, angle_residuals_deg(simulate(*model, data), data), *model, ref=ref0,
                                         current_ref=cur0, current=not fr.spec.candidates)
 
         sig0 = significant(nominal)
         log(f"  calibrated nominal model: RMS {_rms(res0):.4f} deg ({'significant mismatch' if sig0 else 'within noise'})")
+        if x_in is not None:
+            log(f"  its angle residual against the voltage (whitened): {x_in:.2f}x the 99 % bound "
+                f"(counts above {INPUT_K:g}x)")
         shaped, replay_note, tables_note = None, {}, {}
         if sig0:
             # the search starts from the fit's own optimum: a model that misses an effect drifts on the
