@@ -570,7 +570,7 @@ def outdone_by_description(h_family: float, h_description: float) -> bool:
     (HELD_AT_NOISE, mean square in noise units) and the family an order more (1 / GAIN_OUT times)? A physical
     model that explains the data an order worse than a free description, which explains all of it, is not what
     the data show; a description short of the noise may still owe its edge to its freedom (the friction reading
-    of :func:`catalogue_alternative`: angle_dependent_friction@1 random open s38, series 16.9, friction 146)."""
+    of :func:`catalogue_alternative`: angle_dependent_friction@1 random open s38, series 12.8, friction 146)."""
     return bool(math.isfinite(h_description) and h_description <= HELD_AT_NOISE
                 and not h_family <= h_description / GAIN_OUT)
 
@@ -718,9 +718,11 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
             # that leaves only the noise on the folds while the friction with its table leaves an order more has not
             # out-fitted the friction by its freedom: it describes a torque the friction does not (detent_torque
             # random open s42: an 18.07 deg series, 2.2 cycles, held-out 1.41; the friction with its table 156, twin
-            # 63x; g30adf's own cases: 16.9 against 146 and 6.58 against 30.7, series short of the noise)
+            # 63x, outside 1.94x; the friction truths, adf@1 random open s36 / s38 / s40: series 7.82 / 12.8 / 16.4,
+            # short of the noise, against 30.7 / 146 / 23; a ratio alone would lose s38 at 11.4; round 32, i32outside)
             log(f"  {alt.id} with its table (held-out {alt.heldout:.3g}) predicts the folds an order worse than the "
-                f"outside description, which leaves the noise ({generic.heldout:.3g}): not read as a friction over angle")
+                f"outside description, which leaves the noise ({generic.heldout:.3g}): not read as a friction "
+                "over angle")
             friction_reading = False
         if friction_reading and not period_established(generic, ps, data, log):
             # the outside description's "period" is a fit over 1-2 of its cycles that the residual does not repeat:
