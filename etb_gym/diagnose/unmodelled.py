@@ -564,6 +564,17 @@ FAMILY_TIE = 0.02       # families whose tables' held-out errors are this close:
 HELD_AT_NOISE = 4.0     # a held-out error (mean square, noise units) this low leaves nothing for another family
 
 
+def outdone_by_description(h_family: float, h_description: float) -> bool:
+    """Does the outside description predict the held-out folds so much better than a catalogue family with its
+    own table that the family cannot be the explanation: the description leaves no more than the noise
+    (HELD_AT_NOISE, mean square in noise units) and the family an order more (1 / GAIN_OUT times)? A physical
+    model that explains the data an order worse than a free description, which explains all of it, is not what
+    the data show; a description short of the noise may still owe its edge to its freedom (the friction reading
+    of :func:`catalogue_alternative`: angle_dependent_friction@1 random open s38, series 12.8, friction 146)."""
+    return bool(math.isfinite(h_description) and h_description <= HELD_AT_NOISE
+                and not h_family <= h_description / GAIN_OUT)
+
+
 @dataclasses.dataclass
 class FamilyAlternative:
     """A catalogue family that describes what the generic tables found: its formula fit, its refinement
@@ -701,6 +712,17 @@ def catalogue_alternative(generic: Generic, cur: F.FitResult, family_of_term: di
             # friction with its table 35.1 was named over a 54.9 deg series, 1.1 cycles, held-out 3.51; round 30, lead)
             log(f"  {alt.id} with its table (held-out {alt.heldout:.3g}) predicts the folds worse than the catalogue "
                 f"model ({h_catalogue:.3g}): not read as a friction over angle")
+            friction_reading = False
+        if friction_reading and outdone_by_description(alt.heldout, generic.heldout):
+            # the friction reading stands for "the series is a more flexible stand-in for a friction band"; a series
+            # that leaves only the noise on the folds while the friction with its table leaves an order more has not
+            # out-fitted the friction by its freedom: it describes a torque the friction does not (detent_torque
+            # random open s42: an 18.07 deg series, 2.2 cycles, held-out 1.41; the friction with its table 156, twin
+            # 63x, outside 1.94x; the friction truths, adf@1 random open s36 / s38 / s40: series 7.82 / 12.8 / 16.4,
+            # short of the noise, against 30.7 / 146 / 23; a ratio alone would lose s38 at 11.4; round 32, i32outside)
+            log(f"  {alt.id} with its table (held-out {alt.heldout:.3g}) predicts the folds an order worse than the "
+                f"outside description, which leaves the noise ({generic.heldout:.3g}): not read as a friction "
+                "over angle")
             friction_reading = False
         if friction_reading and not period_established(generic, ps, data, log):
             # the outside description's "period" is a fit over 1-2 of its cycles that the residual does not repeat:
