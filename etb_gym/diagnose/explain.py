@@ -224,7 +224,7 @@ class _Ctx:
 
 def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
     """Step 1: every remaining candidate added and refitted at SCREEN_SUBSTEPS (the current model refitted there
-    too). A closed loop's supply drop is fitted from a second start too, its levels read from the current
+    too). A supply drop is fitted from a second start too, its levels (and in open loops its knee) read from the current
     (discriminate.current_start), and the fit that ends lower is kept. Returns (the current model's refit,
     [(dBIC, id, FitResult)] best first), or None when the current model cannot be refitted at the screening step."""
     active = tuple(c.id for c in cur.spec.candidates)
@@ -243,7 +243,7 @@ def _screen(ctx: _Ctx, cur: F.FitResult, remaining: list, rnd: int):
                                                      for k in moved)
                     + ", where the readings went furthest (neither they nor the model's plate reach the nameplate's stop)")
         tasks.append(("fit", screen_dict, ctx.nominal, active + (c,), x0, SCREEN_NFEV, len(cur.x)))
-        if c in D.CURRENT_PINNED:           # closed loops: a drop read from the current (discriminate.current_start),
+        if c in D.CURRENT_PINNED:           # a drop read from the current (discriminate.current_start),
             xc = D.current_start(_spec(screen_dict, ctx.nominal, active + (c,)), ctx.data, x0, len(cur.x),
                                  log=ctx.log)               # a second start: the better screening fit is kept
             if xc is not x0:
