@@ -116,15 +116,15 @@ def _second_start(pf, h, spec_m, free, term: MapTerm, view: Data, data: Data, co
     """A friction level over angle (``term.second_start``) fitted again from the first fit, its table's mean over
     the recorded angles (each knot weighted by the time the recordings spent near it, :func:`.shapes.visit_time_s`)
     moved into the nominal Coulomb level and the table set to 0: the same friction on average where the plate
-    went, carried by the level rather than the table. The fit with the lower held-out error (``h``: the first's)
-    is returned, (fit, error).
+    went, carried by the level rather than the table. Returns (fit, held-out error): the second fit's where it
+    lowers the first's error ``h`` by MIN_GAIN, else the first's.
 
     Why: the nominal Coulomb level and the table's mean trade (a direction the data leave nearly flat), and the
     first fit starts from the calibration's level, which absorbed the band's mean (adf@1 3B open s40: 0.226 N m
     against the truth's 0.216): from there the folds chose a heavy roughness (3.2) at every linearization, which
     anchors the knots the training only passed to the formula at that weight; the table ended 2.4-3.7 mN m high
-    over 54-66 deg, held-out 64, the twin 9.6x the noise. From the second start the folds chose roughness 3e-3,
-    held-out 14.5, the twin 3.4x (docs/diagnosis-history.md, round 32 l32adf). The second fit replaces the first
+    over 54-66 deg, held-out 49, the twin 9.3x the noise. From the second start the folds chose roughness 3e-3,
+    held-out 18.9, the twin 5.2x (docs/diagnosis-history.md, round 32 l32adf). The second fit replaces the first
     only when it lowers the held-out error by MIN_GAIN, the margin a table must beat the formula by: two fits of
     one model that the folds cannot tell apart keep the first (adf@1 3B closed s39: 0.860 -> 0.859 taken, the twin
     1.27x -> 1.42x)."""

@@ -64,8 +64,9 @@ class MapTerm:
                                           # coefficients' own knots (roughness and visit time are taken there;
                                           # smooth_current_term)
     coef_axis: np.ndarray | None = None   # ... and those knots' positions on the axis the roughness is taken over
-    second_start: bool = False    # fitted a second time from the first fit's nominal levels with the table at 0;
-                                  # the folds choose (a friction level over angle: family_table.refine_family)
+    second_start: bool = False    # fitted a second time, the first fit's table mean moved into the nominal
+                                  # Coulomb level and the table at 0; the folds choose by MIN_GAIN (a friction
+                                  # level over angle: family_table._second_start)
 
     @property
     def n_coef(self) -> int:
