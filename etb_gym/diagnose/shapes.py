@@ -64,6 +64,9 @@ class MapTerm:
                                           # coefficients' own knots (roughness and visit time are taken there;
                                           # smooth_current_term)
     coef_axis: np.ndarray | None = None   # ... and those knots' positions on the axis the roughness is taken over
+    second_start: bool = False    # fitted a second time, the first fit's table mean moved into the nominal
+                                  # Coulomb level and the table at 0; the folds choose by MIN_GAIN (a friction
+                                  # level over angle: family_table._second_start)
 
     @property
     def n_coef(self) -> int:
@@ -454,7 +457,7 @@ def family_term(cid: str, base, data: Data) -> MapTerm | None:
                        ("delta_Nm_per_A",), 0.002, "N m/A")
     if cid == "angle_dependent_friction":
         return MapTerm(f"{cid}_map", "friction", mx.AngleFrictionMap, friction_angle_grid(base, data),
-                       ("level_Nm",), 0.005, "N m", (("presliding_rad", 2e-3),))
+                       ("level_Nm",), 0.005, "N m", (("presliding_rad", 2e-3),), second_start=True)
     if cid == "stribeck_friction":         # its drop lies far below the top speed: STRIBECK_SPAN, same spacing
         return MapTerm(f"{cid}_map", "friction", mx.SpeedFrictionMap, speed_grid(data, 7, STRIBECK_FLOOR),
                        ("opening_Nm", "closing_Nm"), 0.005, "N m", (("presliding_rad", 2e-3),))
