@@ -27,6 +27,10 @@ One round:
               least FOOTPRINT_SHARE of the gain that accepts it (the footprint guard, _accept: its effect switched
               off, or the current model refitted, gives that much back); a refused candidate whose refit of the
               current model fits better starts the round again from that refit;
+              closed loops whose mismatch lives in local windows only (no persistent structure: the loop's
+              engagement from rest, which neither the recording's RMS nor the two folds can see): the
+              cross-validated shortlist again by dBIC, the first whose full fit halves the excess over the noise
+              inside those windows (local_windows, _window_down), with the footprint guard on that statistic;
               otherwise stop: nothing in the library explains it
 Rounds repeat (two or more concurrent effects) while the remaining residual is significant.
 
