@@ -1,5 +1,5 @@
 """explain.local_windows / _window_down: a closed loop's mismatch confined to a short window (the loop's first
-engagement from rest) is judged where it lives (docs/diagnosis.md, method, step 3)."""
+engagement from rest, the window holding the plate's first move) is judged where it lives (docs/diagnosis.md, method, step 3)."""
 from types import SimpleNamespace as NS
 
 import numpy as np
@@ -17,8 +17,9 @@ def _residual(level_in_window: float, seed: int = 0) -> np.ndarray:
     return r
 
 
-def _data(residual: str):
-    rec = NS(n=N, t_s=T)
+def _data(residual: str, t_move: float = 0.21):
+    angle = np.where(T < t_move, 3.0, 54.0)          # at rest, then the loop's first step
+    rec = NS(n=N, t_s=T, angle_deg=angle)
     return NS(recs=[NS(rec=rec, residual=residual, noise_deg=0.0128, tol_deg=None)])
 
 
@@ -36,6 +37,8 @@ def test_a_closed_loops_engagement_window_is_found_and_judged_there(monkeypatch)
     # ... but inside the window the excess over the noise goes ~11 -> ~0: halved
     assert E._window_down(fits["fit"], fits["old"], closed, masks)
     assert not E._window_down(fits["bent"], fits["old"], closed, masks)   # ~11 -> ~7: not halved
+    # the same window away from the plate's first move from rest (a stop's contact, a sweep) is not this event
+    assert E.local_windows(fits["old"], _data("observer", t_move=1.0)) is None
 
 
 def test_no_local_windows_in_open_loop_or_at_the_noise(monkeypatch):
