@@ -246,17 +246,29 @@ def noise_colour(residuals: list) -> float:
     return 0.5 * (lo + hi)
 
 
-def _rest_spread(y_deg: np.ndarray, runs: list) -> float:
-    """The noise's standard deviation inside the rest ``runs``: each run about its cubic trend, scaled by
-    the trend's expected share of coloured noise (:func:`noise_colour` when at least COLOUR_MIN,
-    :func:`_detrended_moments`); the median over runs."""
+def detrended_runs(y_deg: np.ndarray, runs: list) -> list:
+    """The reading inside each rest run (a, b) about its REST_TREND_DEGREE trend (presliding creep, not a
+    straight line, removed)."""
     res = []
     for a, b in runs:
         seg = y_deg[a:b]
         k = np.arange(b - a)
-        coef = np.polyfit(k, seg, REST_TREND_DEGREE)    # presliding creep (not a straight line) removed
-        res.append(seg - np.polyval(coef, k))
-    colour = float(np.median([noise_colour([r]) for r in res]))     # a run with creep beyond the trend is an outlier
+        res.append(seg - np.polyval(np.polyfit(k, seg, REST_TREND_DEGREE), k))
+    return res
+
+
+def median_colour(res: list) -> float:
+    """The median over detrended rest runs of each run's :func:`noise_colour` (a run with creep beyond the trend
+    is an outlier); 0 without runs."""
+    return float(np.median([noise_colour([r]) for r in res])) if res else 0.0
+
+
+def _rest_spread(y_deg: np.ndarray, runs: list) -> float:
+    """The noise's standard deviation inside the rest ``runs``: each run about its cubic trend, scaled by
+    the trend's expected share of coloured noise (:func:`noise_colour` when at least COLOUR_MIN,
+    :func:`_detrended_moments`); the median over runs."""
+    res = detrended_runs(y_deg, runs)
+    colour = median_colour(res)
     colour = colour if colour >= COLOUR_MIN else 0.0
     v = []
     for r in res:

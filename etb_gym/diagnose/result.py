@@ -97,15 +97,8 @@ def reading_colour(rd) -> float:
     floor's COLOUR_MIN cut: a residual of AR(1) 0.5 noise left unwhitened follows a slow voltage at 3x the bound,
     clean 3B s38 open)."""
     from . import measurement as M
-    y = np.asarray(rd.rec.angle_deg, float)
-    runs = []
-    for a, b in rd.rest:
-        if b - a > M.REST_TREND_DEGREE + 2:
-            k = np.arange(b - a)
-            runs.append(y[a:b] - np.polyval(np.polyfit(k, y[a:b], M.REST_TREND_DEGREE), k))
-    if not runs:
-        return 0.0
-    return float(np.median([M.noise_colour([r]) for r in runs]))
+    runs = [(a, b) for a, b in rd.rest if b - a > M.REST_TREND_DEGREE + 2]
+    return M.median_colour(M.detrended_runs(np.asarray(rd.rec.angle_deg, float), runs))
 
 
 def input_correlation(data: Data, res: list) -> list:
