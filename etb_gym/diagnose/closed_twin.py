@@ -478,7 +478,8 @@ def rest_offset(final: F.FitResult, data: Data, note: dict | None = None) -> F.F
     offset in rad), the same spring torque at every reading above limp-home. Kept only where the fit's own
     residual (``data``: the observer on closed loops) does not rise by more than its noise (sqrt(2 n)): where the
     recordings pin the offset otherwise (the closing spring, a stop), the move is refused. ``note`` gets the
-    figures (report.json ``replay_tables.rest_offset``).
+    figures (report.json ``replay_tables.rest_offset``). A shift within the readings' resolution step or noise
+    level is left: the rest's mean does not resolve it.
 
     Why (docs/diagnosis-history.md, round 33 q33gain): a closed loop holds the reading at its set points, so above
     limp-home a reading offset o and the preload trade exactly (the spring torque P + R (phi - phi_LH) at the
@@ -499,6 +500,12 @@ def rest_offset(final: F.FitResult, data: Data, note: dict | None = None) -> F.F
         return final
     r_lh = float(sensor.apply(np.zeros(1), np.array([math.degrees(lh)]))[0])
     d_off = float(np.mean(rests)) - r_lh
+    # a quantized reading at rest resolves its mean to about one step where the noise does not dither it: a shift
+    # below the step (or the noise) is not read from the rest (sensor_offset_gain@1 3B s37 closed: -0.014 deg
+    # against a 0.022 deg step, the twin 4.12x -> 4.41x moved)
+    step = max(max(rd.noise_deg, rd.resolution_deg) for rd in data.recs)
+    if abs(d_off) <= step:
+        return final
     vals = final.spec.values(final.x)
     rate = float(plant.spring.params.rate_Nm_per_rad)
     vals["sensor_offset_gain.offset_deg"] += d_off
