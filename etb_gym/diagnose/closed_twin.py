@@ -450,3 +450,74 @@ def unseen_closing_play(final: F.FitResult, data: Data, note: dict | None = None
     if note is not None:
         note["unseen_closing_play"] = info
     return dataclasses.replace(final, x=x) if info["kept"] else final
+
+
+REST_START_MIN_S = 0.02     # rest_offset: the unpowered rest before the loop engages, at least this long
+
+
+def start_rest_reading(rd) -> float | None:
+    """The mean reading of a recording's unpowered rest before its loop engages: the samples from the start up to
+    the first non-zero voltage, at least REST_START_MIN_S long and still (their readings within 6 noise levels
+    and two resolution steps); None if it has none."""
+    v = np.asarray(rd.rec.voltage_V, float)
+    y = np.asarray(rd.rec.angle_deg, float)
+    on = np.flatnonzero(np.abs(v) > 0.0)
+    k = int(on[0]) if on.size else v.size
+    if k * rd.rec.dt_s < REST_START_MIN_S:
+        return None
+    span = float(np.ptp(y[:k]))
+    if span > 6.0 * rd.noise_deg + 2.0 * rd.resolution_deg:
+        return None
+    return float(np.mean(y[:k]))
+
+
+def rest_offset(final: F.FitResult, data: Data, note: dict | None = None) -> F.FitResult:
+    """``final`` with a named ``sensor_offset_gain``'s offset moved along its trade with the spring's preload to
+    where the recordings' unpowered rest reads limp-home: o' = o + (r_rest - r_LH), r_LH the model's reading of
+    the limp-home angle, and the preload P' = P + R (o' - o) / g (R the spring's rate, g the reading's gain, the
+    offset in rad), the same spring torque at every reading above limp-home. Kept only where the fit's own
+    residual (``data``: the observer on closed loops) does not rise by more than its noise (sqrt(2 n)): where the
+    recordings pin the offset otherwise (the closing spring, a stop), the move is refused. ``note`` gets the
+    figures (report.json ``replay_tables.rest_offset``). A shift within the readings' resolution step or noise
+    level is left: the rest's mean does not resolve it.
+
+    Why (docs/diagnosis-history.md, round 33 q33gain): a closed loop holds the reading at its set points, so above
+    limp-home a reading offset o and the preload trade exactly (the spring torque P + R (phi - phi_LH) at the
+    reading's angle (r - o) / g); the fit settles anywhere along that line. The held-out open-loop recording rests
+    on limp-home and the closed stop, where the offset is read directly: sensor_offset_gain@1 3B s45 closed, truth
+    o -0.349 deg, fitted -0.574 deg with the preload 1.3 mN m low (twin 10.1x the noise on the held-out
+    recording; 1.29x with the truth's offset and preload). The one reading that pins the offset in such a loop is
+    the plate at rest before the loop engages: unpowered, it sits at limp-home (the springs' fail-safe position),
+    within the limp-home compliance. This changes only the exported twin and the report's fitted values."""
+    names = final.spec.names
+    if "sensor_offset_gain.offset_deg" not in names or "spring.preload_Nm" not in names or not data.recs \
+            or not all(rd.residual == "observer" for rd in data.recs):
+        return final
+    plant, sensor = final.spec.build(final.x)
+    lh = float(final.spec.base.limp_home_rad)
+    rests = [r for r in (start_rest_reading(rd) for rd in data.recs) if r is not None]
+    if not rests or plant.spring is None or not math.isfinite(lh):
+        return final
+    r_lh = float(sensor.apply(np.zeros(1), np.array([math.degrees(lh)]))[0])
+    d_off = float(np.mean(rests)) - r_lh
+    # a quantized reading at rest resolves its mean to about one step where the noise does not dither it: a shift
+    # below the step (or the noise) is not read from the rest (sensor_offset_gain@1 3B s37 closed: -0.014 deg
+    # against a 0.022 deg step, the twin 4.12x -> 4.41x moved)
+    step = max(max(rd.noise_deg, rd.resolution_deg) for rd in data.recs)
+    if abs(d_off) <= step:
+        return final
+    vals = final.spec.values(final.x)
+    rate = float(plant.spring.params.rate_Nm_per_rad)
+    vals["sensor_offset_gain.offset_deg"] += d_off
+    vals["spring.preload_Nm"] += rate * math.radians(d_off) / sensor.gain
+    lo, hi = final.spec.bounds()
+    x = np.clip(final.spec.x_from_values(vals), lo, hi)
+    c0, n0 = _replay_cost(final, data)
+    c1, _ = _replay_cost(dataclasses.replace(final, x=x), data)
+    margin = math.sqrt(2 * max(n0, 1))
+    info = {"rest_reading_deg": float(np.mean(rests)), "limp_home_reading_deg": r_lh, "offset_shift_deg": d_off,
+            "cost_before": c0, "cost_after": c1, "margin": margin,
+            "kept": bool(math.isfinite(c1) and c1 <= c0 + margin)}
+    if note is not None:
+        note["rest_offset"] = info
+    return dataclasses.replace(final, x=x, rss=c1) if info["kept"] else final

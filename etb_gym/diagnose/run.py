@@ -625,6 +625,14 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
                 final = continue_tables(final, shaped, data, tables_note, significant)
                 from .closed_twin import unseen_closing_play    # a free play's side the recordings never reached
                 final = unseen_closing_play(final, data, tables_note)
+                from .closed_twin import rest_offset    # a reading offset the loop trades against the preload
+                final = rest_offset(final, data, tables_note)
+                o = tables_note.get("rest_offset")
+                if o:
+                    log(f"  sensor_offset_gain: the unpowered rest reads {o['rest_reading_deg']:.3f} deg, limp-home "
+                        f"{o['limp_home_reading_deg']:.3f}: offset moved by {o['offset_shift_deg']:+.3f} deg with the "
+                        f"preload ({'kept' if o['kept'] else 'not kept'}; cost {o['cost_before']:.0f} -> "
+                        f"{o['cost_after']:.0f})")
                 u = tables_note.get("unseen_closing_play")
                 if u:
                     log(f"  backlash: closing side never reached (reach {u['reach_below_limp_home_rad']:.5f} rad, "
