@@ -57,3 +57,21 @@ def test_a_symmetric_drop_on_one_side_is_the_drop_on_both():
     x = np.linspace(-3.9, 3.9, 1000)
     err = np.abs(np.interp(x, odd.grid, odd.values(drop(P))) - drop(x))
     assert err.max() < 0.01 and np.mean(err[x < -0.1]) < 0.003        # 10 mV at most, a few mV on the side unvisited
+
+
+def test_the_odd_form_is_kept_unless_a_free_one_gains_min_gain():
+    from types import SimpleNamespace
+
+    from etb_gym.diagnose.family_table import MIN_GAIN, choose_form
+    odd = SimpleNamespace(term=SimpleNamespace(preferred=True, id="supply_drop_map_odd"))
+    lin = SimpleNamespace(term=SimpleNamespace(preferred=False, id="supply_drop_map"))
+    smooth = SimpleNamespace(term=SimpleNamespace(preferred=False, id="supply_drop_map_smooth"))
+    best, why = choose_form([(lin, 1.03), (smooth, 1.15), (odd, 1.07)])       # s42 3B's folds: within MIN_GAIN
+    assert best is odd and "kept over supply_drop_map" in why
+    best, why = choose_form([(lin, 1.85), (smooth, 1.89), (odd, 1.97)])       # s38 3B's: the free one gains 6 %
+    assert best is lin and why == ""
+    best, _ = choose_form([(lin, 1.0), (odd, 1.0 / (1.0 - MIN_GAIN) - 1e-9)])  # just within: the odd one
+    assert best is odd
+    best, _ = choose_form([(lin, 2.0), (smooth, 1.5)])                        # no preferred form: the lowest
+    assert best is smooth
+    assert choose_form([]) == (None, "")
