@@ -63,9 +63,9 @@ def test_the_odd_form_is_kept_unless_a_free_one_gains_min_gain():
     from types import SimpleNamespace
 
     from etb_gym.diagnose.family_table import MIN_GAIN, choose_form
-    odd = SimpleNamespace(term=SimpleNamespace(preferred=True, id="supply_drop_map_odd"))
-    lin = SimpleNamespace(term=SimpleNamespace(preferred=False, id="supply_drop_map"))
-    smooth = SimpleNamespace(term=SimpleNamespace(preferred=False, id="supply_drop_map_smooth"))
+    odd = SimpleNamespace(term=SimpleNamespace(preferred=True, id="supply_drop_map_odd"), kept=True)
+    lin = SimpleNamespace(term=SimpleNamespace(preferred=False, id="supply_drop_map"), kept=True)
+    smooth = SimpleNamespace(term=SimpleNamespace(preferred=False, id="supply_drop_map_smooth"), kept=True)
     best, why = choose_form([(lin, 1.03), (smooth, 1.15), (odd, 1.07)])       # s42 3B's folds: within MIN_GAIN
     assert best is odd and "kept over supply_drop_map" in why
     best, why = choose_form([(lin, 1.85), (smooth, 1.89), (odd, 1.97)])       # s38 3B's: the free one gains 6 %
@@ -75,3 +75,6 @@ def test_the_odd_form_is_kept_unless_a_free_one_gains_min_gain():
     best, _ = choose_form([(lin, 2.0), (smooth, 1.5)])                        # no preferred form: the lowest
     assert best is smooth
     assert choose_form([]) == (None, "")
+    odd.kept = lin.kept = False                      # the folds keep no form (s45 3B closed): the lowest goes on
+    best, why = choose_form([(lin, 0.824), (smooth, 0.825), (odd, 0.838)])
+    assert best is lin and why == ""

@@ -225,8 +225,11 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bo
 def choose_form(scored: list) -> tuple:
     """The refinement to keep among a family's table forms, ``scored`` = [(Refinement, held-out score), ...] in
     the order tried: the lowest score (the first of equals), except that a preferred form
-    (``MapTerm.preferred``: the odd supply-drop table, shapes.smooth_current_term) is replaced by another only
-    where that lowers the held-out error by MIN_GAIN. The folds see little of a current direction an open loop drives
+    (``MapTerm.preferred``: the odd supply-drop table, shapes.smooth_current_term) that the folds keep (its held-out
+    error MIN_GAIN below the formula's) is replaced by another only where that lowers the held-out error by MIN_GAIN
+    too. Where the folds keep no form, the lowest goes on as before (a closed loop's replay_rescue may keep it:
+    supply_drop@1 3B s45 closed, the linear table rescued, twin 1.08x; the odd one, not kept by the folds and not
+    below the formula, 1.37x). The folds see little of a current direction an open loop drives
     only briefly, and there the free tables' unidentified knots fall back to the formula alone (supply_drop@1 3B s42
     open: free 1.03, odd 1.07 on the folds; the free table kept left the formula's knee 10-13 mV short at -0.1 to
     -0.5 A, where the closed held-out recording brakes, twin 1.58x; the odd one 1.02x; docs/diagnosis-history.md,
@@ -235,7 +238,7 @@ def choose_form(scored: list) -> tuple:
     for ref, d in scored:
         if d < best_score:
             best, best_score = ref, d
-    pref = next(((ref, d) for ref, d in scored if ref.term.preferred and d < math.inf), None)
+    pref = next(((ref, d) for ref, d in scored if ref.term.preferred and ref.kept and d < math.inf), None)
     if best is not None and pref is not None and best is not pref[0] and not best_score < (1.0 - MIN_GAIN) * pref[1]:
         return pref[0], (f"{pref[0].term.id} kept over {best.term.id} (held-out {pref[1]:.3g} against "
                          f"{best_score:.3g}, within MIN_GAIN)")
