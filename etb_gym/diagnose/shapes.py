@@ -66,8 +66,9 @@ class MapTerm:
     coef_axis: np.ndarray | None = None   # ... and those knots' positions on the axis the roughness is taken over
     coef_basis: np.ndarray | None = None  # ... and those knots' values = coef_basis @ coefficients (None: the
                                           # coefficients themselves; an odd table: smooth_current_term(odd=True))
-    preferred: bool = False       # kept over the family's other forms unless one lowers the held-out error by
-                                  # family_table.MIN_GAIN (the odd supply-drop table: smooth_current_term)
+    preferred: bool = False       # where the folds keep it, kept over the family's other forms unless one lowers
+                                  # the held-out error by family_table.MIN_GAIN (family_table.choose_form; the odd
+                                  # supply-drop table: smooth_current_term)
     second_start: bool = False    # fitted a second time, the first fit's table mean moved into the nominal
                                   # Coulomb level and the table at 0; the folds choose by MIN_GAIN (a friction
                                   # level over angle: family_table._second_start)
@@ -292,8 +293,9 @@ def smooth_current_term(term: MapTerm, data: Data, odd: bool = False) -> MapTerm
     unidentified knots to the formula alone (supply_drop@1 3B s42 open: the negative knots at -1.3..-0.19 A
     anchored, the formula's knee there 10-11 mV short of the truth's drop at -0.2..-0.5 A, where the closed
     held-out recording brakes the plate: all of the twin's 1.58x; docs/diagnosis-history.md, round 33 o33supply).
-    The odd table is the family's preferred form: a free one (linear or smooth, :func:`family_terms`) replaces it
-    only where it lowers the folds' held-out error by MIN_GAIN (family_table.refine_family)."""
+    The odd table is the family's preferred form: where the folds keep it, a free one (linear or smooth,
+    :func:`family_terms`) replaces it only where that lowers the folds' held-out error by MIN_GAIN too
+    (family_table.choose_form)."""
     g = np.asarray(term.grid, float)
     M = None
     if odd:
