@@ -171,10 +171,9 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bo
     views = [data]
     if not data.continuity and any(rd.residual == "replay" for rd in data.recs):
         views.append(dataclasses.replace(data, continuity=True))
-    best = None
     comp = _formula_component(final, cid)
     h_cur = None                # the formula's held-out error with the current's rows scored too (once)
-    best_score = math.inf
+    scored = []                 # (Refinement, the score that decides) per form
     for term in terms:
         spec_m = final.spec.with_candidate(term.candidate())
         x0 = np.concatenate([final.x, np.zeros(term.n_coef)])
@@ -215,11 +214,35 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bo
             f"{pf.lams_rel[0]:.2g}{', fitted on the continuous replay' if cont else ''}): held-out "
             f"{'(angle and current) ' if term.score_current else ''}{d_formula:.3g} -> "
             f"{d_map:.3g} ({'kept' if kept else 'not kept'})")
-        if d_map < best_score:
-            best_score = d_map
-            best = Refinement(cid, term, pf.fit, pf.lams_rel[0], h_formula, h_map, kept, pf.problem,
-                              tuple(pf.lams))
+        scored.append((Refinement(cid, term, pf.fit, pf.lams_rel[0], h_formula, h_map, kept, pf.problem,
+                                  tuple(pf.lams)), d_map))
+    best, why = choose_form(scored)
+    if why:
+        log(f"  shape of {cid}: {why}")
     return best
+
+
+def choose_form(scored: list) -> tuple:
+    """The refinement to keep among a family's table forms, ``scored`` = [(Refinement, held-out score), ...] in
+    the order tried: the lowest score (the first of equals), except that a preferred form
+    (``MapTerm.preferred``: the odd supply-drop table, shapes.smooth_current_term) that the folds keep (its held-out
+    error MIN_GAIN below the formula's) is replaced by another only where that lowers the held-out error by MIN_GAIN
+    too. Where the folds keep no form, the lowest goes on as before (a closed loop's replay_rescue may keep it:
+    supply_drop@1 3B s45 closed, the linear table rescued, twin 1.08x; the odd one, not kept by the folds and not
+    below the formula, 1.37x). The folds see little of a current direction an open loop drives
+    only briefly, and there the free tables' unidentified knots fall back to the formula alone (supply_drop@1 3B s42
+    open: free 1.03, odd 1.07 on the folds; the free table kept left the formula's knee 10-13 mV short at -0.1 to
+    -0.5 A, where the closed held-out recording brakes, twin 1.58x; the odd one 1.02x; docs/diagnosis-history.md,
+    round 33 o33supply). Returns (Refinement or None, a log line where the preference decided, else "")."""
+    best, best_score = None, math.inf
+    for ref, d in scored:
+        if d < best_score:
+            best, best_score = ref, d
+    pref = next(((ref, d) for ref, d in scored if ref.term.preferred and ref.kept and d < math.inf), None)
+    if best is not None and pref is not None and best is not pref[0] and not best_score < (1.0 - MIN_GAIN) * pref[1]:
+        return pref[0], (f"{pref[0].term.id} kept over {best.term.id} (held-out {pref[1]:.3g} against "
+                         f"{best_score:.3g}, within MIN_GAIN)")
+    return best, ""
 
 
 def plot_table(ax, term: MapTerm, table: dict, title: str):

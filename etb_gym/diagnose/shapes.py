@@ -64,6 +64,11 @@ class MapTerm:
                                           # coefficients' own knots (roughness and visit time are taken there;
                                           # smooth_current_term)
     coef_axis: np.ndarray | None = None   # ... and those knots' positions on the axis the roughness is taken over
+    coef_basis: np.ndarray | None = None  # ... and those knots' values = coef_basis @ coefficients (None: the
+                                          # coefficients themselves; an odd table: smooth_current_term(odd=True))
+    preferred: bool = False       # where the folds keep it, kept over the family's other forms unless one lowers
+                                  # the held-out error by family_table.MIN_GAIN (family_table.choose_form; the odd
+                                  # supply-drop table: smooth_current_term)
     second_start: bool = False    # fitted a second time, the first fit's table mean moved into the nominal
                                   # Coulomb level and the table at 0; the folds choose by MIN_GAIN (a friction
                                   # level over angle: family_table._second_start)
@@ -81,7 +86,10 @@ class MapTerm:
         """Second differences of the knot values, per value field, in normalized coefficients (through the
         basis where there is one: a direction offset constant over the grid has none)."""
         if self.coef_grid is not None:           # second differences of the coefficients on their own axis
-            return _second_differences(np.asarray(self.coef_axis, float), 1, self.n_coef)
+            if self.coef_basis is None:
+                return _second_differences(np.asarray(self.coef_axis, float), 1, self.n_coef)
+            M = np.asarray(self.coef_basis, float)
+            return _second_differences(np.asarray(self.coef_axis, float), 1, M.shape[0]) @ M
         if self.basis is not None:
             R = dataclasses.replace(self, basis=None).roughness()
             return R @ self.basis if R.size else np.zeros((0, self.n_coef))
@@ -266,7 +274,7 @@ WARP_CURRENT = NEAR_ZERO[0]   # ... the current axis is warped to log(1 + |i| / 
                               # recorded |current|'s 99.8 % quantile
 
 
-def smooth_current_term(term: MapTerm, data: Data) -> MapTerm:
+def smooth_current_term(term: MapTerm, data: Data, odd: bool = False) -> MapTerm:
     """``term`` (a table over current, one value field) with the same coefficients, but its exported table a
     cubic spline through them on the warped axis s = sign(i) log(1 + |i| / i_w), tabulated on FINE_PER_INTERVAL
     knots per interval (uniform in s) so the plant's piecewise-linear lookup follows the spline. A semiconductor's
@@ -275,8 +283,23 @@ def smooth_current_term(term: MapTerm, data: Data) -> MapTerm:
     moves a plate held against its spring by more than the noise (supply_drop@1 random s36 open: the truth's own
     drop tabulated on the 13-knot current grid replays the held-out recording at 8.0x the noise, the same 13 values
     splined on the warped axis at 1.1x; docs/diagnosis-history.md, round 30 e30supply). Roughness: the coefficients'
-    second differences over s; visit time: at the coefficients' knots."""
+    second differences over s; visit time: at the coefficients' knots.
+
+    ``odd``: the table odd in the current, d(-i) = -d(i): one coefficient per knot of the side the recordings
+    reach further (``term``'s knots there), mirrored onto the other side, 0 at 0 A (:func:`odd_knots`). A supply's
+    internal resistance and an H-bridge's drop do not depend on the current's direction (either direction
+    conducts through one high-side and one low-side switch of the same kind), so the side an open loop drives
+    less (a brief braking current) takes its drop from the side it drives more, where the free table leaves the
+    unidentified knots to the formula alone (supply_drop@1 3B s42 open: the negative knots at -1.3..-0.19 A
+    anchored, the formula's knee there 10-11 mV short of the truth's drop at -0.2..-0.5 A, where the closed
+    held-out recording brakes the plate: all of the twin's 1.58x; docs/diagnosis-history.md, round 33 o33supply).
+    The odd table is the family's preferred form: where the folds keep it, a free one (linear or smooth,
+    :func:`family_terms`) replaces it only where that lowers the folds' held-out error by MIN_GAIN too
+    (family_table.choose_form)."""
     g = np.asarray(term.grid, float)
+    M = None
+    if odd:
+        g, M = odd_knots(g)
     cur = [rd.rec.current_A for rd in data.recs if rd.rec.current_A is not None]
     top = max(float(np.quantile(np.abs(np.concatenate(cur)), 0.998)), 0.1) if cur else max(abs(g[0]), abs(g[-1]))
     iw = WARP_CURRENT * top
@@ -286,7 +309,25 @@ def smooth_current_term(term: MapTerm, data: Data) -> MapTerm:
     fine[np.searchsorted(fine_s, s)] = g                 # the coefficients' knots exactly
     B = CubicSpline(s, np.eye(g.size), bc_type="natural")(fine_s)
     B[np.abs(B) < 1e-12] = 0.0
-    return dataclasses.replace(term, id=f"{term.id}_smooth", grid=fine, basis=B, coef_grid=g, coef_axis=s)
+    if M is not None:
+        B = B @ M
+    return dataclasses.replace(term, id=f"{term.id}_{'odd' if odd else 'smooth'}", grid=fine, basis=B, coef_grid=g,
+                               coef_axis=s, coef_basis=M, preferred=odd)
+
+
+def odd_knots(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A signed current grid ``g`` made odd: the knots P of the side that reaches further (ties: the positive),
+    as -P, 0, P, and the matrix M (knots x P) with the knots' values = M @ (the values at P): +1 at P, -1 at the
+    mirrored knot, 0 at 0 A."""
+    g = np.asarray(g, float)
+    pos, neg = g[g > 0.0], -g[g < 0.0][::-1]
+    P = pos if pos.size and (not neg.size or pos[-1] >= neg[-1]) else neg
+    n = P.size
+    G = np.concatenate([-P[::-1], [0.0], P])
+    M = np.zeros((2 * n + 1, n))
+    M[n + 1:, :] = np.eye(n)
+    M[:n, :] = -np.eye(n)[::-1]
+    return G, M
 
 
 def hat_weights(x: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -317,8 +358,11 @@ def visit_time_s(term: "MapTerm", data: Data) -> np.ndarray | None:
     recorded for a current table; another grid). With a basis, a coefficient's time is the sum over the knots it
     moves (a direction offset: every knot of both directions)."""
     if term.coef_grid is not None:
-        return visit_time_s(dataclasses.replace(term, grid=np.asarray(term.coef_grid, float), basis=None,
-                                                coef_grid=None, coef_axis=None), data)
+        v = visit_time_s(dataclasses.replace(term, grid=np.asarray(term.coef_grid, float), basis=None,
+                                             coef_grid=None, coef_axis=None, coef_basis=None), data)
+        if v is None or term.coef_basis is None:
+            return v
+        return (np.abs(np.asarray(term.coef_basis)) > 0).T.astype(float) @ v    # an odd table: both signs' time
     if term.basis is not None:
         v = visit_time_s(dataclasses.replace(term, basis=None), data)
         return None if v is None else (np.abs(term.basis) > 0).T.astype(float) @ v
@@ -362,8 +406,9 @@ def family_terms(cid: str, base, data: Data) -> list:
         out.append(direction_split_term(t) if t.cls is mx.SpeedFrictionMap else direction_offset_term(cid))
     if cid == "coil_heating":            # losses that go with the voltage as well as the copper loss (the folds decide)
         out.append(thermal_term(cid, base, data, voltage=True))
-    if cid == "supply_drop" and t is not None:      # the same coefficients, splined on a log-warped current axis
-        out.append(smooth_current_term(t, data))
+    if cid == "supply_drop" and t is not None:      # the same coefficients, splined on a log-warped current axis,
+        out.append(smooth_current_term(t, data))    # free on both sides and odd in the current
+        out.append(smooth_current_term(t, data, odd=True))
     if cid == "torque_constant_error":
         grid = current_grid(data, base, 9, by_extent=True)
         out.append(MapTerm(f"{cid}_current_map", "electrical", mx.CurrentTorqueConstantMap, grid,
