@@ -16,8 +16,9 @@ unvisited spans wider than ``MIN_SPAN_DEG``, and per span the twin's angle torqu
 nominal model's at the far end (the extrapolated correction, N m) and what carries it.
 
 :func:`hold_airflow` (closed loops, after ``closed_twin.continue_tables``) sets how an airflow torque's table is
-carried beyond the angles the loop reached: held at the data's edge above them, and its level at limp-home moved
-into the spring's preload where the data never went below limp-home (docs/diagnosis-shapes.md, round 33).
+carried beyond the angles the loop reached: held at the data's edge above them, and, where the data never went
+below limp-home, its level and straight slope at limp-home moved into the spring's preload and rate
+(docs/diagnosis-shapes.md, round 33).
 """
 from __future__ import annotations
 
@@ -26,6 +27,8 @@ import math
 import numpy as np
 
 AIRFLOW = ("airflow_torque",)   # families whose angle torque is held beyond the closed loop's reach (hold_airflow)
+RATE_SPAN_DEG = 25.0     # hold_airflow: the straight part of an airflow total fitted over this span above limp-home,
+#                          where the catalogue's x^2 law stays under a tenth of its value at the open stop
 SLOW_OVER = 1.0           # a state whose fitted time constant exceeds this multiple of the longest recording is
 #                           extrapolated in time (its settled value was never seen)
 EDGE_Q = (0.1, 99.9)      # percentiles of the recorded angles taken as the visited range (round 14's quantiles)
@@ -55,7 +58,8 @@ def _carriers(plant, shaped, tables_note) -> list[str]:
     held = {e["table"] for e in ab.get("tables", [])} if ab.get("kept") else set()
     for ref in getattr(shaped, "refinements", []) or []:
         if ref.kept and ref.term.cls.grid_field == "angle_rad":
-            how = (", held at the reached edge's value (hold_airflow)" if ref.term.id in held
+            how = (", held above the recorded angles, its level and slope at limp-home in the spring (hold_airflow)"
+                   if ref.term.id in held
                    else ", the table continued along its slope" if ref.term.id in continued else "")
             out.append(f"{ref.family_id}'s formula + learned table over angle{how}")
     g = getattr(shaped, "generic", None)
@@ -210,20 +214,33 @@ def describe(plant, nominal_plant, data, shaped=None, tables_note=None) -> dict:
     return out
 
 
-def airflow_total(total: np.ndarray, top: int | None, kl: int | None) -> tuple[np.ndarray, float]:
-    """An airflow torque's total (formula + table) on its knots carried beyond the data: held above knot ``top``
-    (the first knot at or beyond the highest recorded angle: its interval still holds data, so it keeps its value;
-    None: the data reach the last knot) at its value, and shifted by its value at knot ``kl`` (limp-home's, where
-    the data never went below limp-home; None otherwise), which is returned as the level to move into the
-    spring's preload (0.0 when nothing moves). See :func:`hold_airflow`."""
+def airflow_total(total: np.ndarray, top: int | None, kl: int | None, grid: np.ndarray | None = None,
+                  reached: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
+    """An airflow torque's total (formula + table) on its knots carried beyond the data (see :func:`hold_airflow`).
+
+    With ``kl`` (limp-home's knot, where the data never went below limp-home; None otherwise), ``grid`` (rad) and
+    ``reached`` (the reached knots' indices): the straight line fitted through the reached knots within
+    RATE_SPAN_DEG above limp-home is taken out (its slope returned, N m/rad, for the spring's rate) and the knots
+    below limp-home are held at limp-home's value. Then the total above knot ``top`` (the first knot at or beyond
+    the highest recorded angle: its interval still holds data, so it keeps its value; None: the data reach the
+    last knot) is held at its value there, and with ``kl`` the level at limp-home is taken out (returned, N m,
+    for the spring's preload). Returns (total, level, slope)."""
     new = np.asarray(total, float).copy()
+    slope = 0.0
+    if kl is not None and grid is not None and reached is not None:
+        g = np.asarray(grid, float)
+        m = reached[(g[reached] >= g[kl]) & (g[reached] <= g[kl] + math.radians(RATE_SPAN_DEG))]
+        if m.size >= 3:
+            slope = float(np.polyfit(g[m] - g[kl], new[m], 1)[0])
+            new -= slope * (g - g[kl])
+            new[:kl] = new[kl]
     if top is not None:
         new[top + 1:] = new[top]
-    moved = 0.0
+    level = 0.0
     if kl is not None:
-        moved = float(new[kl])
-        new -= moved
-    return new, moved
+        level = float(new[kl])
+        new -= level
+    return new, level, slope
 
 
 def _airflow_edit(final, ref, data, angles) -> dict | None:
@@ -254,16 +271,22 @@ def _airflow_edit(final, ref, data, angles) -> dict | None:
     if kl is not None and seen[0] < kl:
         kl = None                                   # the data went below limp-home: the table is identified there
     above = np.flatnonzero(grid >= float(np.max(angles)))
-    new, moved = airflow_total(total, int(above[0]) if above.size else None, kl)
+    new, moved, slope = airflow_total(total, int(above[0]) if above.size else None, kl, grid, seen)
     if moved:
         p = final.spec.params[jp[0]][1]
         x[jp[0]] -= moved / p.scale                 # T_SP0 - level: the torque above limp-home unchanged
+    jr = [k for k, (o, p) in enumerate(final.spec.params) if o == "nominal" and p.name == "spring.rate_Nm_per_rad"]
+    if slope and jr:
+        x[jr[0]] -= slope / final.spec.params[jr[0]][1].scale    # R_F - slope: the same torque above limp-home
+    elif slope:
+        return None
     if np.allclose(new, total, rtol=0.0, atol=1e-12):
         return None
     for p, k, v in zip(ps, idx, new - prof):
         x[k] = (v - p.init) / p.scale
     return {"x": x, "table": term.id, "data_deg": [float(np.degrees(np.min(angles))), float(np.degrees(np.max(angles)))],
-            "total_before": total.tolist(), "total_after": new.tolist(), "preload_moved_Nm": -moved}
+            "total_before": total.tolist(), "total_after": new.tolist(), "preload_moved_Nm": -moved,
+            "rate_moved_Nm_per_rad": -slope}
 
 
 def hold_airflow(final, shaped, data, note: dict | None = None, significant=None):
@@ -284,7 +307,14 @@ def hold_airflow(final, shaped, data, note: dict | None = None, significant=None
       preload acts with the other sign, the table with the same; the torque above limp-home is unchanged to
       rounding. Measured: airflow_torque@1 random closed s41, reached 5.3 (limp-home) - 86 deg; table -4.8 mN m at
       limp-home, preload 4.3 % low, the twin 8.4 mN m under the truth at 4 deg, 91 % of the held-out's squared
-      error there; twin 29.1x -> 3.6x.
+      error there; twin 29.1x -> 3.5x.
+    * With it, the straight line through the reached knots within RATE_SPAN_DEG above limp-home moves into the
+      spring's rate R_F (R_F - s, the total - s (phi - phi_LH), the knots below limp-home held at 0): the x^2 law
+      has no slope at the nearly closed plate, and over the recorded angles a table's ramp and the rate are one
+      straight line, so the fit trades them; beyond the data the held table leaves the rate to carry the torque,
+      and a traded rate is off by the ramp there. Measured: s45 above, rate -3.9 %, the total's ramp -0.26 mN m/deg
+      over 3-28 deg where the truth's plateau is < 2 % of its level; moved, the total reads 0 to 36 deg and
+      -15.4 mN m from 66 deg (the truth's -15.5): 8.7x -> 2.4x; s41 (rate +8.5 %) 3.5x -> 2.2x.
 
     ``note`` (report.json ``replay_tables``) gets ``airflow_beyond``."""
     from .closed_twin import _replay_cost
