@@ -623,6 +623,8 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
                 final = refit_weak(final, data, significant, replay_note)
                 from .closed_twin import continue_tables    # closed loops: a table beyond the visited angles
                 final = continue_tables(final, shaped, data, tables_note, significant)
+                from .twin_range import hold_airflow    # an airflow table: held above the reach, spring at limp-home
+                final = hold_airflow(final, shaped, data, tables_note, significant)
                 from .closed_twin import unseen_closing_play    # a free play's side the recordings never reached
                 final = unseen_closing_play(final, data, tables_note)
                 from .closed_twin import rest_offset    # a reading offset the loop trades against the preload
