@@ -702,3 +702,57 @@ def plot_series(ax, series: Series, title: str):
     ax.set_ylabel("N m")
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7)
+
+
+def from_table_period(g: Generic, nominal: F.FitResult, data: Data, log=print) -> Generic:
+    """An outside description with no period (no periodic table, no residual period, no series): when the angle
+    table's periodogram names a period with R2 >= PROBE_R2 (short of the MIN_CYCLES test), the series search
+    (:func:`_series_from`, then :func:`shortest_polished`) is started from it, and the series replaces the tables
+    in the twin when (a) its period is the table's or a harmonic of it (the table's period m = 1, 2, 3 times the
+    series', within HARMONIC_TOL: a table over a few cycles can lock on a multiple, :func:`unmodelled.harmonic_period`)
+    and (b) its held-out error is within SERIES_TOL of the tables' (as when the tables show the period).
+    Why: the tables are learned over the visited angles only and carry nothing beyond them, while a torque
+    periodic in angle (a detent, a ripple per ampere) repeats there; a closed loop visits a few periods of the
+    stroke, the open-loop held-out recording all of it. current_ripple random closed s43 (a sine per ampere of
+    14.09 deg): no table dominates, the residual shows no period, the angle table's periodogram 44.1 deg at R2
+    0.95; the tables' twin was 15.9x the noise on the open-loop held-out recording (docs/diagnosis-history.md,
+    round 33 s33ripple)."""
+    from .unmodelled import HARMONIC_TOL
+    a = g.shape.get("angle", {})
+    Pt = a.get("period_deg")
+    if periodic_term(g.shape) is not None or g.series is not None or not Pt or a.get("periodic_r2", 0.0) < PROBE_R2:
+        return g
+    Pt = float(Pt)
+    log(f"  no period described; the angle table's periodogram reads {Pt:.2f} deg (R2 {a['periodic_r2']:.2f} over "
+        f"{a.get('cycles', 0.0):.1f} cycles): a Fourier series is started from it")
+    found = _series_from(Pt, nominal, data, log)
+    if found is None:
+        return g
+    best = found[0]
+    if best.heldout > (1.0 + SERIES_TOL) * g.heldout:
+        log(f"  the Fourier series from the table's period (held-out {best.heldout:.3g}) does worse than the tables "
+            f"({g.heldout:.3g}): the tables stay")
+        return g
+    best = shortest_polished(best, nominal, data, log)
+    Ps = math.degrees(best.component.params.period_rad)
+    r = Pt / Ps
+    m = round(r)
+    if m not in (1, 2, 3) or abs(r - m) > HARMONIC_TOL * m:
+        log(f"  the Fourier series' period {Ps:.2f} deg is not the table's {Pt:.2f} deg nor a harmonic of it: "
+            "the tables stay")
+        return g
+    desc = best.describe()
+    key = "current" if best.parts == ("current",) else "angle"
+    shape = dict(g.shape)
+    shape["series"] = desc
+    shape[key] = {**g.shape.get(key, {}), "periodic": True, "period_deg": desc["period_deg"], "period_table_deg": Pt}
+    shape["significant_terms"] = _leading(g.shape, key)
+    shape["summary"] = (f"outside the catalogue: a torque periodic in angle, {desc['current_words']}: period "
+                        f"{desc['period_deg']:.1f} deg (started from the angle table's periodogram, {Pt:.1f} deg over "
+                        f"{a.get('cycles', 0.0):.1f} cycles" + (f", its 1/{m}" if m > 1 else "")
+                        + f"); in the twin: {desc['words']}")
+    log(f"  the Fourier series replaces the tables in the twin: held-out {best.heldout:.3g} against {g.heldout:.3g}; "
+        f"period {Ps:.2f} deg (1/{m} of the table's {Pt:.2f} deg); {desc['words']}")
+    rms = _rms_deg(best.fit.spec, best.fit.x, data)
+    return dataclasses.replace(g, fit=best.fit, heldout=best.heldout, shape=shape, series=best,
+                               heldout_tables=g.heldout, rms_deg=rms if math.isfinite(rms) else g.rms_deg)

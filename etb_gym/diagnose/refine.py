@@ -343,6 +343,11 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
             res.dropped = tuple(st.id for st in steps)
             gain = 1.0 - alt.heldout / h_cat if h_cat > 0 else 0.0
             return alt.fit, [Step(alt.id, alt.formula, dbic(alt.formula, nominal), gain)], res
+        if ps is None and U.periodic_term(g.shape) is None and g.series is None:
+            # no period described, none in the residual: the tables carry nothing beyond the visited angles; a
+            # series from the angle table's own periodogram may (outside_series.from_table_period; where the
+            # residual shows a period, with_series(hint=ps) has already tried the table's)
+            res.generic = g = S.from_table_period(g, nominal, data, log=log)
         res.outside = True
         res.dropped = tuple(st.id for st in steps)
         log(f"  outside the catalogue ({g.id}): held-out {g.heldout:.3g} against {h_cat:.3g} for the catalogue model"
