@@ -27,6 +27,26 @@ def _pin_hypothesis_constants():
 _pin_hypothesis_constants()
 
 
+@pytest.fixture
+def still_plate_data():
+    """A factory: ``make(current_A)`` gives the diagnosis' prepared data of one recording at 1 kHz whose plate stands
+    at 40 deg while the current follows ``current_A`` (the voltage 1.25 ohm times it, 12 V supply): what the
+    tests of a table over current (a supply drop's) fit on."""
+    import numpy as np
+
+    from etb_gym.diagnose.model import prepare
+    from etb_gym.recordings import Recording
+
+    def make(current_A):
+        cur = np.asarray(current_A, float)
+        t = np.arange(cur.size) * 1e-3
+        rec = Recording(name="r.csv", t_s=t, voltage_V=1.25 * cur, angle_deg=np.full(t.size, 40.0), current_A=cur,
+                        supply_V=None)
+        return prepare([rec], 12.0)
+
+    return make
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_cmdline_main(config):
     """``-n N`` without ``--dist``: work stealing instead of xdist's round-robin "load". Round-robin hands

@@ -5,22 +5,17 @@ import numpy as np
 
 from etb_gym import make_plant
 from etb_gym.diagnose import shapes as S
-from etb_gym.diagnose.model import prepare
-from etb_gym.recordings import Recording
 
 
-def _data(low=-3.0):
+def _current(low=-3.0):
     """An open loop's current: mostly positive (to 4 A), down to ``low`` only briefly."""
     t = np.arange(3000) * 1e-3
-    cur = np.where(np.sin(2 * np.pi * 0.5 * t) > 0, 4.0 * np.sin(2 * np.pi * 0.5 * t),
-                   -low * np.sin(2 * np.pi * 0.5 * t) ** 9)
-    rec = Recording(name="r.csv", t_s=t, voltage_V=1.25 * cur, angle_deg=np.full(t.size, 40.0), current_A=cur,
-                    supply_V=None)
-    return prepare([rec], 12.0)
+    return np.where(np.sin(2 * np.pi * 0.5 * t) > 0, 4.0 * np.sin(2 * np.pi * 0.5 * t),
+                    -low * np.sin(2 * np.pi * 0.5 * t) ** 9)
 
 
-def test_the_odd_table_mirrors_the_side_reached_further():
-    data = _data()
+def test_the_odd_table_mirrors_the_side_reached_further(still_plate_data):
+    data = still_plate_data(_current())
     terms = S.family_terms("supply_drop", make_plant("3B"), data)
     lin, odd = terms[0], terms[-1]
     assert odd.id == "supply_drop_map_odd"
@@ -35,8 +30,8 @@ def test_the_odd_table_mirrors_the_side_reached_further():
     assert odd.component(c).kind == lin.component(np.zeros(lin.n_coef)).kind   # an ordinary CurrentVoltageMap
 
 
-def test_its_coefficients_see_both_directions_time_and_an_odd_line_is_not_rough():
-    data = _data(low=-0.3)
+def test_its_coefficients_see_both_directions_time_and_an_odd_line_is_not_rough(still_plate_data):
+    data = still_plate_data(_current(low=-0.3))
     lin, smooth, odd = S.family_terms("supply_drop", make_plant("3B"), data)
     v_odd, v_lin = S.visit_time_s(odd, data), S.visit_time_s(lin, data)
     pos = lin.grid > 0
@@ -49,8 +44,8 @@ def test_its_coefficients_see_both_directions_time_and_an_odd_line_is_not_rough(
     assert np.linalg.norm(R @ (s_pos ** 2)) > 0.1                      # a bend through 0 A is rough
 
 
-def test_a_symmetric_drop_on_one_side_is_the_drop_on_both():
-    data = _data(low=-0.3)
+def test_a_symmetric_drop_on_one_side_is_the_drop_on_both(still_plate_data):
+    data = still_plate_data(_current(low=-0.3))
     odd = S.family_terms("supply_drop", make_plant("3B"), data)[-1]
     drop = lambda i: 0.07 * np.arcsinh(i / 0.27) + 0.02 * i            # noqa: E731  the diode-like drop, odd
     P = odd.coef_grid[odd.coef_grid > 0]

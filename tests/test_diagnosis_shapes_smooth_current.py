@@ -4,20 +4,15 @@ import numpy as np
 
 from etb_gym import make_plant
 from etb_gym.diagnose import shapes as S
-from etb_gym.diagnose.model import prepare
-from etb_gym.recordings import Recording
 
 
-def _data():
+def _current():
     t = np.arange(3000) * 1e-3
-    cur = 0.5 + 3.5 * np.sin(2 * np.pi * 0.5 * t)                     # -3 .. 4 A
-    rec = Recording(name="r.csv", t_s=t, voltage_V=1.25 * cur, angle_deg=np.full(t.size, 40.0), current_A=cur,
-                    supply_V=None)
-    return prepare([rec], 12.0)
+    return 0.5 + 3.5 * np.sin(2 * np.pi * 0.5 * t)                     # -3 .. 4 A
 
 
-def test_supply_drop_gets_the_smooth_table_beside_the_linear_one():
-    data = _data()
+def test_supply_drop_gets_the_smooth_table_beside_the_linear_one(still_plate_data):
+    data = still_plate_data(_current())
     terms = S.family_terms("supply_drop", make_plant("3B"), data)
     lin, smooth = terms[0], terms[1]
     assert smooth.id == "supply_drop_map_smooth" and smooth.n_coef == lin.n_coef
@@ -34,8 +29,8 @@ def test_supply_drop_gets_the_smooth_table_beside_the_linear_one():
     assert np.allclose(R @ smooth.coef_axis, 0.0)                     # straight on the warped axis: not rough
 
 
-def test_the_spline_follows_a_log_like_drop_closer_than_straight_lines():
-    data = _data()
+def test_the_spline_follows_a_log_like_drop_closer_than_straight_lines(still_plate_data):
+    data = still_plate_data(_current())
     lin, smooth = S.family_terms("supply_drop", make_plant("3B"), data)[:2]
     drop = lambda i: 0.1 * np.sign(i) * np.log1p(np.abs(i) / 0.05) + 0.05 * i      # noqa: E731  a diode + a wire
     g = lin.grid
