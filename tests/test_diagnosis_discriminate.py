@@ -617,3 +617,36 @@ def test_open_loop_is_true_for_replayed_recordings_only():
     obs = dataclasses.replace(data, recs=[dataclasses.replace(rd, residual="observer") for rd in data.recs])
     assert not U.open_loop(obs)
     assert not U.open_loop(dataclasses.replace(data, recs=[]))
+
+
+class _Stop(Exception):
+    pass
+
+
+@pytest.mark.parametrize("transit", [True, False])
+def test_the_family_tables_leave_the_knots_the_plate_passes_through_free(monkeypatch, transit):
+    """discriminate.TRANSIT_KNOTS: the tables' knots the recording visits only briefly (under VISIT_MIN_S) are not
+    anchored to 0 in the comparison; the twin's rule (anchored) holds when the flag is off."""
+    from etb_gym.diagnose import penalized as P
+    from etb_gym.diagnose import shapes as S
+    rec = make_recording(make_plant("3B", substeps=20), np.random.default_rng(3), duration_s=1.5, name="rig.csv")
+    data = prepare([rec], 12.0)
+    spec = Spec(make_plant("3B", substeps=20))
+    cur = F.FitResult(spec, np.zeros(len(spec.params)), 1.0, 1, None, 1)
+    term = S.family_term("shaft_flux_loss", spec.base, data)
+    vis = S.visit_time_s(term, data)
+    brief = (vis > 0) & (vis < S.VISIT_MIN_S)
+    assert brief.any(), vis                  # the recording passes some knots quickly
+    seen = []
+
+    def fake_fit(pb, data, **kw):
+        seen.append(pb)
+        raise _Stop
+
+    monkeypatch.setattr(D, "TRANSIT_KNOTS", transit)
+    monkeypatch.setattr(P, "fit_penalized", fake_fit)
+    with pytest.raises(_Stop):
+        D.table_heldout(cur, "shaft_flux_loss", data)
+    anchor = seen[0].groups[0][2]
+    n = term.n_coef
+    assert np.any(anchor[-n:][brief] > 0) != transit, (anchor, vis)
