@@ -158,8 +158,7 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bo
     replaces the later ones: the split's two extra constants beat torque_constant_error + inductance_saturation on
     the folds (held-out 3.06 against 4.91) and displaced the saturation, twin 1.23x -> 6.05x
     (torque_constant_error@2 3B s20 open, round 27)."""
-    comp = _formula_component(final, cid)
-    terms = [t for t in family_terms(cid, final.spec.base, data, comp) if split or not t.split_start]
+    terms = [t for t in family_terms(cid, final.spec.base, data) if split or not t.split_start]
     if not terms:
         return None
     pb_formula = Problem.make(final.spec, final.x, ("nominal", cid))
@@ -173,6 +172,7 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bo
     if not data.continuity and any(rd.residual == "replay" for rd in data.recs):
         views.append(dataclasses.replace(data, continuity=True))
     best = None
+    comp = _formula_component(final, cid)
     h_cur = None                # the formula's held-out error with the current's rows scored too (once)
     best_score = math.inf
     for term in terms:

@@ -67,8 +67,6 @@ class MapTerm:
     second_start: bool = False    # fitted a second time, the first fit's table mean moved into the nominal
                                   # Coulomb level and the table at 0; the folds choose by MIN_GAIN (a friction
                                   # level over angle: family_table._second_start)
-    rough_free: int = 0           # the last this many coefficients cost no roughness: their basis column has a
-                                  # shape fixed from outside the table (the formula's drop: direction_drop_term)
 
     @property
     def n_coef(self) -> int:
@@ -86,10 +84,7 @@ class MapTerm:
             return _second_differences(np.asarray(self.coef_axis, float), 1, self.n_coef)
         if self.basis is not None:
             R = dataclasses.replace(self, basis=None).roughness()
-            out = R @ self.basis if R.size else np.zeros((0, self.n_coef))
-            if self.rough_free:
-                out[:, self.n_coef - self.rough_free:] = 0.0
-            return out
+            return R @ self.basis if R.size else np.zeros((0, self.n_coef))
         return _second_differences(np.log(self.grid) if self.cls.grid_field in LOG_GRIDS else self.grid,
                                    len(self.value_fields), self.n_coef)
 
@@ -357,19 +352,14 @@ def angle_torque_term(tid: str, family: str, base, data: Data, n: int, scale: fl
 
 
 # which table refines which family's formula
-def family_terms(cid: str, base, data: Data, formula=None) -> list:
+def family_terms(cid: str, base, data: Data) -> list:
     """The maps that may refine candidate ``cid`` (the one with the lowest held-out error is tried):
     :func:`family_term`'s, and for a torque-constant error also one over current (a constant that saturates
-    or differs by current direction). ``formula``: the family's fitted formula component (the Stribeck drop's
-    direction form :func:`direction_drop_term` is shaped by it)."""
+    or differs by current direction)."""
     t = family_term(cid, base, data)
     out = [t] if t is not None else []
     if t is not None and t.family == "friction":       # every friction family: a level that differs by direction
         out.append(direction_split_term(t) if t.cls is mx.SpeedFrictionMap else direction_offset_term(cid))
-    if cid == "stribeck_friction" and t is not None and formula is not None:
-        d = direction_drop_term(t, formula)
-        if d is not None:
-            out.append(d)
     if cid == "coil_heating":            # losses that go with the voltage as well as the copper loss (the folds decide)
         out.append(thermal_term(cid, base, data, voltage=True))
     if cid == "supply_drop" and t is not None:      # the same coefficients, splined on a log-warped current axis
@@ -423,30 +413,6 @@ def direction_split_term(term: MapTerm) -> MapTerm:
     B[n:, :n] = np.eye(n)
     B[:n, n], B[n:, n] = 1.0, -1.0
     return dataclasses.replace(term, id=f"{term.id}_split", basis=B)
-
-
-def direction_drop_term(term: MapTerm, formula) -> MapTerm | None:
-    """``term`` (the Stribeck table over speed, independent opening and closing branches) in a nested form whose
-    direction difference follows the formula's drop: one shape m(|omega|) shared by both directions plus d D(|omega|),
-    opening m + d D and closing m - d D, D the fitted formula's drop exp(-(|omega|/w_s)^delta) (1 at rest, 0 at
-    sliding speed; n + 1 coefficients, d costs no roughness: its shape is the formula's). A rig's breakaway excess
-    may differ by direction (the return spring loads the bearings and the seal lip one way: closing, the spring
-    drives the plate through them; opening, the motor pulls against it), while the sliding (Coulomb) level it
-    decays to is one friction: a level that differs by direction *at rest* and not at speed. The split form's
-    constant offset (:func:`direction_split_term`) holds the difference at every speed, where the nominal levels
-    and the spring's preload trade with it; the independent branches pay roughness for it in each direction
-    (docs/diagnosis-history.md, round 33 p33stribeck). None: no drop (w_s or the stiction not positive)."""
-    p = formula.params
-    ws, dl = float(getattr(p, "stribeck_velocity_rad_s", 0.0)), float(getattr(p, "exponent", 0.5))
-    if not (ws > 0.0 and float(getattr(p, "stiction_Nm", 0.0)) > 0.0):
-        return None
-    n = term.grid.size
-    drop = np.exp(-(np.abs(term.grid) / ws) ** dl)
-    B = np.zeros((2 * n, n + 1))
-    B[:n, :n] = np.eye(n)
-    B[n:, :n] = np.eye(n)
-    B[:n, n], B[n:, n] = drop, -drop
-    return dataclasses.replace(term, id=f"{term.id}_drop", basis=B, rough_free=1)
 
 
 def direction_offset_term(cid: str) -> MapTerm:
