@@ -95,6 +95,11 @@ def rest_claim(nominal: F.FitResult, data: Data, candidates, significant=None, n
     info = {"rest_reading_deg": r_lh + d, "limp_home_reading_deg": r_lh, "offset_deg": d, "step_deg": step,
             "threshold_deg": REST_CLAIM_K * step, **{k: ev[k] for k in ("dbic", "heldout_gain", "samples")},
             "kept": False}
+    # reported, not a gate: where friction exceeds the preload a rig's unpowered plate may rest anywhere within the
+    # limp-home compliance; the proof's plate starts on limp-home (docs/diagnosis-shapes.md, the rest's claim)
+    comp = getattr(plant.spring.params, "limp_home_compliance_rad", None)
+    if comp is not None:
+        info["limp_home_compliance_deg"] = math.degrees(float(comp))
     if note is not None:
         note["rest_claim"] = info
     if not abs(d) > REST_CLAIM_K * step:
