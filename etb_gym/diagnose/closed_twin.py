@@ -455,9 +455,9 @@ def unseen_closing_play(final: F.FitResult, data: Data, note: dict | None = None
 REST_START_MIN_S = 0.02     # rest_offset: the unpowered rest before the loop engages, at least this long
 
 
-def start_rest_reading(rd) -> float | None:
-    """The mean reading of a recording's unpowered rest before its loop engages: the samples from the start up to
-    the first non-zero voltage, at least REST_START_MIN_S long and still (their readings within 6 noise levels
+def start_rest_samples(rd) -> np.ndarray | None:
+    """The readings [deg] of a recording's unpowered rest before its loop engages: the samples from the start up
+    to the first non-zero voltage, at least REST_START_MIN_S long and still (their readings within 6 noise levels
     and two resolution steps); None if it has none."""
     v = np.asarray(rd.rec.voltage_V, float)
     y = np.asarray(rd.rec.angle_deg, float)
@@ -468,7 +468,13 @@ def start_rest_reading(rd) -> float | None:
     span = float(np.ptp(y[:k]))
     if span > 6.0 * rd.noise_deg + 2.0 * rd.resolution_deg:
         return None
-    return float(np.mean(y[:k]))
+    return y[:k]
+
+
+def start_rest_reading(rd) -> float | None:
+    """The mean of :func:`start_rest_samples` (None if the recording has no unpowered rest)."""
+    y = start_rest_samples(rd)
+    return None if y is None else float(np.mean(y))
 
 
 def rest_offset(final: F.FitResult, data: Data, note: dict | None = None) -> F.FitResult:

@@ -646,6 +646,17 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
             lap("polish")
         else:
             final, steps = nominal, []
+            from .rest_claim import rest_claim   # closed loops: an offset the unpowered rest reads, the loop cannot
+            claim = rest_claim(nominal, data, opts.candidates, significant, tables_note)
+            c = tables_note.get("rest_claim")
+            if c:
+                log(f"  closed loop: the unpowered rest reads {c['rest_reading_deg']:.3f} deg, limp-home "
+                    f"{c['limp_home_reading_deg']:.3f} (threshold {c['threshold_deg']:.3f}): {c.get('rule')}"
+                    + (f" (observer cost {c['cost_before']:.0f} -> {c['cost_after']:.0f})" if "cost_after" in c
+                       else ""))
+            if claim is not None:
+                final, steps = claim
+            lap("polish")
     finally:
         runner.close()
         bar.close()
