@@ -70,6 +70,15 @@ def test_residual_option_reaches_the_diagnosis(tmp_path, rec_path, reached, valu
     assert reached[0][2].residual == value
 
 
+@pytest.mark.parametrize("flag, value", [([], True), (["--rest-not-at-limp-home"], False)])
+def test_rest_option_reaches_the_diagnosis(tmp_path, rec_path, reached, flag, value):
+    """--rest-not-at-limp-home: a rig whose plate may rest off limp-home unpowered (static friction above the
+    springs' preload) must not have a sensor offset read from its rest (rest_claim, rest_offset)."""
+    with pytest.raises(Stop):
+        dcli.main([str(rec_path), "--out", str(tmp_path / "o"), *flag])
+    assert reached[0][2].rest_at_limp_home is value
+
+
 def test_out_is_checked_before_work(tmp_path, rec_path, reached, capsys):
     f = tmp_path / "file.txt"
     f.write_text("keep me")

@@ -85,3 +85,12 @@ def test_rest_evidence_reads_the_offset_and_its_two_folds():
     assert ev["offset_deg"] == pytest.approx(0.2, abs=0.01) and ev["dbic"] < -1000 and ev["heldout_gain"] > 0.9
     ev0 = RC.rest_evidence([3.0 + 0.03 * rng.standard_normal(200)], 3.0, [0.03])
     assert ev0["dbic"] > -10 and ev0["heldout_gain"] < 0.1
+
+
+def test_dead_band_of_the_nominal_3b_is_the_models_documented_one():
+    """docs/model.md: the paper's static friction 0.22 N m exceeds the preload 0.15 N m, so a released plate stops
+    anywhere within (T_s - T_SP0) / R_F = 11.1 deg of limp-home; a plate whose preload exceeds its friction has none."""
+    p = make_plant("3B")
+    assert RC.dead_band_deg(p) == pytest.approx(11.1, abs=0.05)
+    assert RC.dead_band_deg(p.with_params({"spring.preload_Nm": 0.3})) == 0.0
+    assert RC.dead_band_deg(make_plant("1B")) == 0.0      # viscous friction holds no plate

@@ -99,6 +99,11 @@ def add_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
                    help="what the model is scored by: the replay of the recorded voltage, or the one-step error of "
                         "an observer pulled towards the measured angle (for closed-loop recordings); auto (default): "
                         "the observer where the recording is detected as closed loop (docs/diagnosis.md)")
+    p.add_argument("--rest-not-at-limp-home", action="store_true",
+                   help="do not read a sensor offset from a closed loop's unpowered rest before it engages (default: "
+                        "the springs hold an unpowered plate at limp-home, so that rest marks limp-home; use this "
+                        "flag where the static friction exceeds the springs' preload and a released plate may rest "
+                        "away from limp-home, docs/diagnosis-shapes.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bar, summary only")
     return p
 
@@ -187,6 +192,7 @@ def load_inputs(a):
     if a.substeps is not None:
         kw["substeps"] = a.substeps
     kw["residual"] = a.residual
+    kw["rest_at_limp_home"] = not a.rest_not_at_limp_home
     opts = Options(model=a.model, plant=plant, max_effects=a.max_effects, jobs=a.jobs, progress=not a.quiet,
                    verbose=not a.quiet, **kw)
     check_out(Path(a.out), a.force, inputs=[*a.recordings, *([a.plant] if a.plant else [])])

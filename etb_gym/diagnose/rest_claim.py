@@ -60,6 +60,17 @@ def rest_evidence(rests: list, r_lh: float, noises: list) -> dict:
             "heldout_gain": 1.0 - after / before if before > 0 else 0.0, "samples": int(y.size)}
 
 
+def dead_band_deg(plant) -> float:
+    """Half-width [deg] of the angles around limp-home where a released, unpowered plate of ``plant`` stays put:
+    (T_s - T_SP0) / R where the static friction T_s (LuGre's ``static_Nm``, else the Coulomb level) exceeds the
+    preload T_SP0, else 0 (the springs return it onto limp-home, within the contact compliance)."""
+    fp = getattr(plant.friction, "params", None)
+    ts = getattr(fp, "static_Nm", getattr(fp, "coulomb_Nm", 0.0)) if fp is not None else 0.0
+    sp = plant.spring.params
+    rate = float(sp.rate_Nm_per_rad)
+    return math.degrees(max(float(ts) - float(sp.preload_Nm), 0.0) / rate) if rate > 0 else math.inf
+
+
 def rest_claim(nominal: F.FitResult, data: Data, candidates, significant=None, note: dict | None = None):
     """(the final model, its steps) with ``sensor_offset_gain`` named from the recordings' unpowered rest, or None.
 
@@ -75,9 +86,12 @@ def rest_claim(nominal: F.FitResult, data: Data, candidates, significant=None, n
 
     Why REST_CLAIM_K = 3 noise levels: the proof's own line for a detectable effect (proof_tables.DETECTABLE), far
     above what a still rest's mean can miss by (the noise over sqrt(n) of >= 20 samples, half a resolution step
-    where the noise does not dither the reading). Only a reading offset (or a limp-home angle other than the
-    nameplate's, which the catalogue does not fit) moves the unpowered rest's reading; a torque cannot move it
-    beyond the limp-home compliance, which the springs' preload holds it within."""
+    where the noise does not dither the reading). The premise: the unpowered rest marks limp-home, as a throttle
+    body's fail-safe springs are built to return a released plate there and a recording started at rest on
+    limp-home has it; then only a reading offset (or a limp-home angle other than the nameplate's, which the
+    catalogue does not fit) moves the rest's reading. Where the static friction exceeds the preload (the paper's
+    nominal 3B) a released plate may stop within :func:`dead_band_deg` of limp-home; the caller skips this rule
+    (and closed_twin.rest_offset) where ``Options.rest_at_limp_home`` is False (``--rest-not-at-limp-home``)."""
     from .candidates import CANDIDATES
     from .closed_twin import _replay_cost, start_rest_samples
     if "sensor_offset_gain" not in candidates or nominal.spec.candidates or not data.recs \
@@ -95,11 +109,10 @@ def rest_claim(nominal: F.FitResult, data: Data, candidates, significant=None, n
     info = {"rest_reading_deg": r_lh + d, "limp_home_reading_deg": r_lh, "offset_deg": d, "step_deg": step,
             "threshold_deg": REST_CLAIM_K * step, **{k: ev[k] for k in ("dbic", "heldout_gain", "samples")},
             "kept": False}
-    # reported, not a gate: where friction exceeds the preload a rig's unpowered plate may rest anywhere within the
-    # limp-home compliance; the proof's plate starts on limp-home (docs/diagnosis-shapes.md, the rest's claim)
-    comp = getattr(plant.spring.params, "limp_home_compliance_rad", None)
-    if comp is not None:
-        info["limp_home_compliance_deg"] = math.degrees(float(comp))
+    # reported, not a gate: where the static friction exceeds the preload (the paper's 3B: 0.22 against 0.15 N m) a
+    # released plate stops anywhere within (T_s - T_SP0) / R of limp-home (docs/model.md, "dead band"); the rule
+    # assumes the rest marks limp-home (the proof's plate starts there; Options.rest_at_limp_home turns it off)
+    info["dead_band_deg"] = dead_band_deg(plant)
     if note is not None:
         note["rest_claim"] = info
     if not abs(d) > REST_CLAIM_K * step:

@@ -39,6 +39,7 @@ class Options:
     current_weight: float = 0.3
     residual: str = "auto"                     # "auto": observer on closed-loop recordings, else replay (model.prepare)
     substeps: int | None = None                # integrator substeps per sample; None: chosen (choose_substeps)
+    rest_at_limp_home: bool = True             # a closed loop's unpowered rest before it engages marks limp-home
     progress: bool = True
     verbose: bool = True
 
@@ -628,7 +629,8 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
                 from .closed_twin import unseen_closing_play    # a free play's side the recordings never reached
                 final = unseen_closing_play(final, data, tables_note)
                 from .closed_twin import rest_offset    # a reading offset the loop trades against the preload
-                final = rest_offset(final, data, tables_note)
+                if opts.rest_at_limp_home:
+                    final = rest_offset(final, data, tables_note)
                 o = tables_note.get("rest_offset")
                 if o:
                     log(f"  sensor_offset_gain: the unpowered rest reads {o['rest_reading_deg']:.3f} deg, limp-home "
@@ -647,7 +649,8 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
         else:
             final, steps = nominal, []
             from .rest_claim import rest_claim   # closed loops: an offset the unpowered rest reads, the loop cannot
-            claim = rest_claim(nominal, data, opts.candidates, significant, tables_note)
+            claim = (rest_claim(nominal, data, opts.candidates, significant, tables_note)
+                     if opts.rest_at_limp_home else None)
             c = tables_note.get("rest_claim")
             if c:
                 log(f"  closed loop: the unpowered rest reads {c['rest_reading_deg']:.3f} deg, limp-home "
