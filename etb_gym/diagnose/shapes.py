@@ -159,6 +159,22 @@ def data_speeds_rad_s(data: Data) -> np.ndarray:
     return np.concatenate([np.gradient(np.radians(smooth(rd.rec.angle_deg, 15)), rd.rec.dt_s) for rd in data.recs])
 
 
+def resting_mask(data: Data) -> np.ndarray:
+    """Per sample of :func:`data_speeds_rad_s`: True inside the recordings' rest runs (``RecData.rest``, the
+    noise floor's runs where the plate stands still). There the readings' speed is the noise's (0.01-0.1 rad/s
+    on a 0.03 deg reading, either sign), not a sliding speed: a speed table's knots are not visited by them
+    (round 34, x34stribeck: rest credited 0.4-0.9 s to each direction's 0.01-0.1 rad/s knots of stribeck@2
+    random s46, whose sliding spent 0.003-0.016 s there; the table put a -11 mN m closing dip there, and the
+    twin, held at a set point of the held-out closed loop, slid off it: 43x, 14x without the table)."""
+    out = []
+    for rd in data.recs:
+        m = np.zeros(rd.rec.n, bool)
+        for a, b in rd.rest:
+            m[a:b] = True
+        out.append(m)
+    return np.concatenate(out)
+
+
 def angle_grid(base, data: Data, n: int, limp_home: bool = False) -> np.ndarray:
     """n knots over the plant's stroke (its stops; the visited range if the plant has none); with ``limp_home``
     the knot nearest the plant's limp-home angle is moved onto it (a torque table meets the spring there)."""
@@ -373,10 +389,11 @@ def visit_time_s(term: "MapTerm", data: Data) -> np.ndarray | None:
         return np.tile(t, len(term.value_fields))
     if field == "speed_rad_s":
         w = data_speeds_rad_s(data)
+        sliding = ~resting_mask(data)      # the rest runs' readings move by the noise alone: no speed is visited
         out = []
         for f in term.value_fields:
             sel = w > 0 if "opening" in f else (w < 0 if "closing" in f else np.ones(w.size, bool))
-            out.append(_hat_time(np.abs(w[sel]), term.grid, float(np.mean(dts))))
+            out.append(_hat_time(np.abs(w[sel & sliding]), term.grid, float(np.mean(dts))))
         return np.concatenate(out)
     if field == "current_A":
         cur = [rd.rec.current_A for rd in data.recs]
