@@ -2,11 +2,13 @@
 reads as 0.01-0.1 rad/s of either sign (shapes.resting_mask; docs/diagnosis-history.md, round 34 x34stribeck)."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from etb_gym.components import effects_maps as mx
 from etb_gym.diagnose import shapes as S
-from etb_gym.diagnose.model import prepare
+from etb_gym.diagnose.model import LOOP_Z, prepare
 from etb_gym.recordings import Recording
 
 GRID = np.array([0.0, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 9.0])
@@ -49,3 +51,17 @@ def test_a_plate_at_rest_visits_no_speed_knot_while_its_readings_noise_would():
     assert np.all(v[:n][low] < S.VISIT_MIN_S)              # nor an opening one
     k1 = int(np.argmin(np.abs(GRID - 1.0)))
     assert v[k1] > 0.2                                       # the ramp at 1 rad/s is sliding: visited
+
+
+def test_a_closed_loops_rest_runs_stay_counted():
+    """The controller holds the plate against the band at its set points (the observer sees the level there):
+    the rule is the open loop's."""
+    data = _data()
+    closed = dataclasses.replace(data, recs=[dataclasses.replace(rd, closed_loop_evidence=LOOP_Z + 1.0)
+                                             for rd in data.recs])
+    assert not np.any(S.resting_mask(closed))
+    w = S.data_speeds_rad_s(closed)
+    n = GRID.size
+    v = S.visit_time_s(_term(), closed)
+    assert np.allclose(v[n:], S._hat_time(np.abs(w[w < 0]), GRID, data.recs[0].rec.dt_s))
+    assert np.all(v[n:][1:4] >= S.VISIT_MIN_S)
