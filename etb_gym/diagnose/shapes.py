@@ -19,7 +19,7 @@ from scipy.interpolate import CubicSpline
 
 from ..components import effects_maps as mx
 from .candidates import Candidate, FitParam
-from .model import Data
+from .model import LOOP_Z, Data
 
 ANGLE_KNOTS = 16         # knots of a refined angle map over the stroke
 PROFILE_KNOTS = 17       # knots of a torque-constant profile over the stroke (5.6 deg on 3B)
@@ -157,6 +157,28 @@ def data_angles_rad(data: Data) -> np.ndarray:
 def data_speeds_rad_s(data: Data) -> np.ndarray:
     from .measurement import smooth
     return np.concatenate([np.gradient(np.radians(smooth(rd.rec.angle_deg, 15)), rd.rec.dt_s) for rd in data.recs])
+
+
+def resting_mask(data: Data) -> np.ndarray:
+    """Per sample of :func:`data_speeds_rad_s`: True inside the rest runs (``RecData.rest``, the noise floor's runs
+    where the plate stands still) of the recordings made in open loop. There the readings' speed is the noise's
+    (0.01-0.1 rad/s on a 0.03 deg reading, either sign), not a sliding speed, and a plate resting under the
+    recorded voltage lies anywhere inside the friction band: a speed table's knots are not visited by them
+    (round 34, x34stribeck: rest credited 0.4-0.9 s to each direction's 0.01-0.1 rad/s knots of stribeck@2
+    random open s46, whose sliding spent 0.003-0.016 s there; the table put a -11 mN m closing dip there, which
+    pushed the twin on where the plate stops at a set point of the held-out closed loop: 43x, 15x with the rule).
+    A closed loop's rest runs stay counted: there the controller holds the plate against the band, its voltage
+    working with the reading noise at every set point (0.09 V per sample on stribeck@2 random closed s45, 0.01-0.02
+    V on the open loops), which the observer residual sees at those knots (their +0.3-0.8 mN m opening level took
+    that twin to 2.18x, 2.99x without them)."""
+    out = []
+    for rd in data.recs:
+        m = np.zeros(rd.rec.n, bool)
+        if rd.closed_loop_evidence <= LOOP_Z:
+            for a, b in rd.rest:
+                m[a:b] = True
+        out.append(m)
+    return np.concatenate(out)
 
 
 def angle_grid(base, data: Data, n: int, limp_home: bool = False) -> np.ndarray:
@@ -373,10 +395,11 @@ def visit_time_s(term: "MapTerm", data: Data) -> np.ndarray | None:
         return np.tile(t, len(term.value_fields))
     if field == "speed_rad_s":
         w = data_speeds_rad_s(data)
+        sliding = ~resting_mask(data)      # the rest runs' readings move by the noise alone: no speed is visited
         out = []
         for f in term.value_fields:
             sel = w > 0 if "opening" in f else (w < 0 if "closing" in f else np.ones(w.size, bool))
-            out.append(_hat_time(np.abs(w[sel]), term.grid, float(np.mean(dts))))
+            out.append(_hat_time(np.abs(w[sel & sliding]), term.grid, float(np.mean(dts))))
         return np.concatenate(out)
     if field == "current_A":
         cur = [rd.rec.current_A for rd in data.recs]
