@@ -19,6 +19,10 @@ nominal model's at the far end (the extrapolated correction, N m) and what carri
 carried beyond the angles the loop reached: held at the data's edge above them, and, where the data never went
 below limp-home, its level and straight slope at limp-home moved into the spring's preload and rate
 (docs/diagnosis-shapes.md, round 33).
+
+:func:`hold_friction` (both loop types, after :func:`hold_airflow`) holds a friction level over angle (the family's
+formula + table) at the edge knot's value beyond the knots the slowly visited angles reach (docs/diagnosis-shapes.md,
+round 34).
 """
 from __future__ import annotations
 
@@ -411,7 +415,10 @@ def hold_friction(final, shaped, data, note: dict | None = None, significant=Non
     training visited 5-65 deg slowly, passed 66-80 deg at 3 ms per degree and rested at the open stop; the twin's
     formula (slope -0.054, curvature -0.12 N m) fell on past the band to 18 mN m under the truth at 71.5 deg, where
     the closed held-out recording holds the plate (90 % of its squared error there), 54 mN m under at 90 deg; held
-    at the 66 deg knot's level the twin is 12.8x -> see the history.
+    at the 61 deg knot's level (the last one the slow visits reach) the training's own replay improves (cost 42876
+    -> 27652: its fast passes saw no falling level) and the twin goes 12.8x -> 8.9x; the rest is the band's far
+    flank, which no slow visit saw (the nominal Coulomb level there instead: 5.4x on the held-out, but the
+    training's replay worse than the hold's, 2.54x against 2.03x the noise).
 
     Kept where the replay of the recorded voltage gets no worse than its noise (sqrt(2 n)) and the verdict's test
     (``significant``) finds no new mismatch (as :func:`hold_airflow`). ``note`` (report.json ``replay_tables``)
