@@ -626,6 +626,14 @@ def _diagnose(recordings, model, out, options, kw) -> "Result":
                 final = continue_tables(final, shaped, data, tables_note, significant)
                 from .twin_range import hold_airflow    # an airflow table: held above the reach, spring at limp-home
                 final = hold_airflow(final, shaped, data, tables_note, significant)
+                from .twin_range import hold_friction   # a friction level over angle: held beyond the slow visits
+                final = hold_friction(final, shaped, data, tables_note, significant)
+                fb = tables_note.get("friction_beyond")
+                if fb:
+                    spans = ", ".join("{:.1f}-{:.1f} deg".format(*e["identified_deg"]) for e in fb["tables"])
+                    log(f"  friction level over angle: held beyond the knots the slow visits reach ({spans}): "
+                        f"{'kept' if fb['kept'] else 'not kept'} (replay cost {fb['replay_cost_before']:.0f} -> "
+                        f"{fb['replay_cost_after']:.0f})")
                 from .closed_twin import unseen_closing_play    # a free play's side the recordings never reached
                 final = unseen_closing_play(final, data, tables_note)
                 from .closed_twin import rest_offset    # a reading offset the loop trades against the preload
