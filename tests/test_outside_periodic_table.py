@@ -49,3 +49,38 @@ def test_not_tried_without_a_periodic_table_or_where_the_tables_already_win(monk
     g = _generic()
     out, calls = _run(monkeypatch, g, _Series(15.33, 0.5), h_cat=math.inf)
     assert calls == [] and out is g
+
+
+def _search(monkeypatch, residual):
+    """outside_series._series_from with the fits replaced: held-out 4.6 for the angle alone, 24.9 per ampere, 3.81
+    for both parts (detent_torque 3B closed s45); which parts' series are fitted, and the one kept."""
+    held = {("angle",): 4.6, ("current",): 24.9, ("angle", "current"): 3.81}
+    fitted = []
+
+    def fit_series(nominal, data, P, parts, H, start=None, log=None, period_free=True, iters=0, heldout=True,
+                   grown_from=None):
+        fitted.append((tuple(parts), H))
+        s = SimpleNamespace(parts=tuple(parts), harmonics=H, heldout=held[tuple(parts)] if heldout else math.inf,
+                            component=SimpleNamespace(params=SimpleNamespace(period_rad=math.radians(P))),
+                            fit=SimpleNamespace(rss=held[tuple(parts)] * (1.0 + 0.1 * (H == 6)), spec=parts, x=H))
+        return s
+
+    monkeypatch.setattr(OS, "scan_period", lambda nominal, data, P, H, log: P)
+    monkeypatch.setattr(OS, "fit_series", fit_series)
+    monkeypatch.setattr(OS, "Problem", SimpleNamespace(make=lambda spec, x, ids: spec))
+    monkeypatch.setattr(OS, "heldout_error", lambda pf, data: held[pf])
+    monkeypatch.setattr(OS, "_coefficients", lambda s: {})
+    monkeypatch.setattr(OS, "subharmonic", lambda s, nominal, data, log: None)
+    monkeypatch.setattr(OS, "reduced", lambda s, nominal, data, log: None)
+    data = SimpleNamespace(recs=[SimpleNamespace(residual=residual)])
+    best, sub, P = OS._series_from(24.56, None, data, log=lambda *a: None)
+    return best, fitted
+
+
+def test_a_closed_loop_series_keeps_one_part(monkeypatch):
+    """In a closed loop the current follows the angle torque: the folds cannot tell a part per ampere from a part of
+    the angle alone, so both parts are not fitted; an open loop still tries them."""
+    best, fitted = _search(monkeypatch, "observer")
+    assert ("angle", "current") not in [p for p, _ in fitted] and best.parts == ("angle",)
+    best, fitted = _search(monkeypatch, "replay")
+    assert ("angle", "current") in [p for p, _ in fitted] and best.parts == ("angle", "current")
