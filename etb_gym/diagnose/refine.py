@@ -308,6 +308,8 @@ def refine(nominal: F.FitResult, final: F.FitResult, steps: list, data: Data, si
     if ps is not None and U.periodic_term(g.shape) is None:
         # the tables show no period, the residual does: a series of the residual's period
         g = S.with_series(g, nominal, data, log=log, hint=ps)
+    # a periodic angle table that is not among the significant ones: its series may beat the catalogue model
+    g = S.periodic_table_series(g, h_cat, nominal, data, log=log)
     res.generic = g
     rms_nom = U._rms_deg(nominal.spec, nominal.x, data)
     if U.compare(g, h_cat, rms_nom, data, ps if ps and ps["significant"] else None) or _accounts(persistent, cur, g.fit, log) \
