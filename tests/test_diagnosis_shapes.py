@@ -591,3 +591,47 @@ def test_a_series_is_described_at_its_own_shortest_period():
     q4 = PeriodicAngleTorque.Params(period_rad=math.radians(30.0), cos_Nm=six, sin_Nm=z, cos_Nm_per_A=z,
                                     sin_Nm_per_A=z)
     assert OS.repeats_every(q4, ("angle",)) == 3         # 30 / 6 = 5 deg is below PERIODS_DEG: 30 / 3
+
+
+@pytest.mark.parametrize("h_off, taken", [(0.5, True), (0.97, False)])
+def test_a_spring_asymmetry_table_is_also_fitted_with_the_formula_off(monkeypatch, h_off, taken):
+    """refine_family for spring_asymmetry (a preload step at limp-home the knots cannot cancel) fits its table a
+    second time from the formula switched off, the formula's torque moved onto the knots; that fit is taken only
+    where it lowers the held-out error by MIN_GAIN. Airflow's smooth formula is fitted once. The fits and scores
+    are stand-ins: the start and the choice only."""
+    from etb_gym.diagnose.candidates import CANDIDATES
+    base = make_plant("3B", substeps=20)
+    data = prepare([make_recording(base, np.random.default_rng(0), duration_s=0.5, name="r.csv")], 12.0)
+    data = dataclasses.replace(data, continuity=True)            # one view: the formula-off start is the change
+    starts = []
+
+    def fake_fit(pb, view, log=None):
+        starts.append(pb.x.copy())
+        return P.PenalizedFit(F.FitResult(pb.spec, pb.x.copy(), 1.0, 10, None, 0), [1.0], [1.0], None, pb, [])
+
+    for cid, fitted in (("spring_asymmetry", 2), ("airflow_torque", 1)):
+        spec = Spec(base).with_candidate(CANDIDATES[cid])
+        vals = {f"{cid}.closing_preload_delta_Nm": -0.03, f"{cid}.closing_rate_delta_Nm_per_rad": -0.3,
+                f"{cid}.quadratic_Nm": 0.03}
+        fr = F.FitResult(spec, spec.x_from_values(vals), 1.0, 10, None, 0)
+        k_f = [k for k, (o, _) in enumerate(spec.params) if o == cid]
+
+        def fake_heldout(pb, d, lams=(), J=None, jac_substeps=P.JAC_SUBSTEPS):
+            if len(pb.x) == len(fr.x):
+                return 1.0                                           # the formula alone
+            return h_off if np.allclose(pb.x[k_f], 0.0) else 0.9    # formula off / on under the table
+
+        monkeypatch.setattr(FT, "fit_penalized", fake_fit)
+        monkeypatch.setattr(FT, "heldout_error", fake_heldout)
+        starts.clear()
+        ref = FT.refine_family(fr, cid, data, log=lambda *a: None)
+        assert len(starts) == fitted
+        if cid != "spring_asymmetry":
+            continue
+        term = ref.term
+        prof = P.formula_profile(FT._formula_component(fr, cid), term)
+        n = len(fr.x)
+        assert np.allclose(starts[1][k_f], 0.0) and np.allclose(starts[1][n:], prof / term.scale)
+        assert prof[0] < -0.03 and prof[-1] == 0.0                  # below limp-home only
+        assert ref.heldout_map == (h_off if taken else 0.9)
+        assert np.allclose(ref.fit.x[k_f], 0.0) == taken

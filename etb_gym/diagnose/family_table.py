@@ -151,6 +151,51 @@ def _second_start(pf, h, spec_m, free, term: MapTerm, view: Data, data: Data, co
     return (pf2, h2) if h2 < (1.0 - MIN_GAIN) * h else (pf, h)
 
 
+STEP_AT_KINK = ("spring_asymmetry",)   # formulas with a step at limp-home: the table is also fitted with them off
+
+
+def _formula_off_start(pf, h, spec_m, free, term: MapTerm, view: Data, data: Data, cid: str, comp):
+    """The family's table fitted again with the family's formula switched off (its ``off`` values) and the
+    formula's torque on the knots (:func:`.penalized.formula_profile`) moved into the table: the same torque where
+    the knots can carry it, now carried by the table alone. Returns (fit, held-out error): the second fit's where it
+    lowers the first's error ``h`` by MIN_GAIN, else the first's.
+
+    Why (spring asymmetry only, STEP_AT_KINK): its formula is a second preload and rate below limp-home, so a
+    preload change is a step at limp-home, where the plate rests, and the table's knots (a few degrees apart)
+    cannot cancel a step between two of them. When the truth's change is not a preload and rate (a closing spring
+    that softens or hardens with the angle, zero at limp-home), the formula's fit takes a preload step anyway:
+    spring_asymmetry@2 3B open s48 (-0.13 N m at the closed stop, 0 at limp-home 3 deg) fitted the closing rate
+    at its bound (-0.3 N m/rad) and a preload step of -0.034 N m; the table on top chose roughness 1e3, held-out
+    36.5, while airflow's smooth formula with the same table took the spring's torque at 2.13 (the table -0.128
+    N m at 0 deg and a line above limp-home: the spring's signature) and was named. Airflow's formula is smooth,
+    its table corrects it: not refitted. (docs/diagnosis-history.md, round 34 z34spring)"""
+    from .candidates import CANDIDATES
+    from .penalized import formula_profile
+    off = dict(CANDIDATES[cid].off)
+    k_f = [k for k, (o, p) in enumerate(spec_m.params) if o == cid and p.name in off]
+    k_c = np.array([k for k, (o, _) in enumerate(spec_m.params) if o == term.id], int)
+    prof = formula_profile(comp, term)
+    if not k_f or prof is None or any(isinstance(off[spec_m.params[k][1].name], str) for k in k_f):
+        return pf, h
+    x2 = pf.fit.x.copy()
+    for k in k_f:
+        p = spec_m.params[k][1]
+        x2[k] = (float(off[p.name]) - p.init) / p.scale
+    x2[k_c] += prof / term.scale
+    lo, hi = spec_m.bounds()
+    x2 = np.clip(x2, lo, hi)
+    plant, _ = spec_m.build(x2)
+    comp2 = next((e for e in plant.effects if getattr(e, "effect_id", None) == cid), None)
+    pb2 = Problem.make(spec_m, x2, free, [term], data, formula=comp2)
+    try:
+        pf2 = fit_penalized(pb2, view, log=None)
+        h2 = heldout_error(dataclasses.replace(pf2.problem, x=pf2.fit.x), data, pf2.lams,
+                           pf2.jac if view is data else None)
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+        return pf, h
+    return (pf2, h2) if h2 < (1.0 - MIN_GAIN) * h else (pf, h)
+
+
 def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bool = True) -> Refinement | None:
     """Refine accepted candidate ``cid`` of ``final`` by its table (None: no table form for the family); with
     several table forms (:func:`family_terms`) the one with the lowest held-out error. ``split`` False: without
@@ -194,6 +239,8 @@ def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bo
                                 pf_v.jac if view is data else None)
             if term.second_start:
                 pf_v, h_v = _second_start(pf_v, h_v, spec_m, free, term, view, data, comp)
+            if cid in STEP_AT_KINK and comp is not None:
+                pf_v, h_v = _formula_off_start(pf_v, h_v, spec_m, free, term, view, data, cid, comp)
             if pf is None or h_v < h_map:
                 h_map, pf, cont = h_v, pf_v, view is not data
         d_formula, d_map = h_formula, h_map          # the scores that decide
