@@ -650,3 +650,24 @@ def test_the_family_tables_leave_the_knots_the_plate_passes_through_free(monkeyp
     anchor = seen[0].groups[0][2]
     n = term.n_coef
     assert np.any(anchor[-n:][brief] > 0) != transit, (anchor, vis)
+
+
+@pytest.mark.parametrize("loop, flux, angle, expect", [
+    ("closed", 2.41, 2.42, "airflow_torque"),       # a closed loop's tie: the angle-only torque (s49's figures)
+    ("closed", 17.3, 43.0, "shaft_flux_loss"),      # the current table wins outright: it stands
+    ("open", 2.41, 2.42, "shaft_flux_loss"),        # an open loop's current passes through 0 A: the scores decide
+])
+def test_a_closed_loops_tie_of_current_and_angle_tables_names_the_angle_torque(monkeypatch, loop, flux, angle,
+                                                                                 expect):
+    """In a closed loop the holding current follows the angle torque: a current table and an angle table that
+    tie carry no evidence of current scaling, and the family that claims less (the angle alone) is named."""
+    cur = type("Cur", (), {"spec": type("S", (), {"base": make_plant("3B")})()})()
+    data = type("D", (), {"recs": [type("R", (), {"residual": "replay" if loop == "open" else "observer"})()]})()
+    scores = {"shaft_flux_loss": flux, "angle": angle}
+    monkeypatch.setattr(D, "table_heldout", lambda c, cid, d, tables=None: scores[D.table_kind(cid)])
+    ids = ["shaft_flux_loss", "airflow_torque"]
+    ev = D.discriminate(cur, data, ids, log=lambda *a: None)
+    assert ev["winner"] == expect
+    assert ("tie" in ev) == (expect == "airflow_torque")
+    assert D.current_tie({"shaft_flux_loss": 1.0, "airflow_torque": 1.0 + 2 * D.TABLE_TIE}, "shaft_flux_loss",
+                         ids, False) is None     # beyond the tie: no evidence-free swap

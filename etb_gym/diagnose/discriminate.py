@@ -30,7 +30,7 @@ from . import fit as F
 from . import shapes as S
 from . import penalized as P
 from .candidates import CANDIDATES
-from .model import Data
+from .model import Data, open_loop
 
 ANGLE_TORQUES = ("shaft_flux_loss", "angle_dependent_friction", "airflow_torque", "spring_asymmetry")
 GROUP = ANGLE_TORQUES + ("torque_constant_error",)   # refined over angle, a current-proportional torque table
@@ -47,6 +47,7 @@ SIGNATURE = {"shaft_flux_loss": "proportional to the current",
 AGAINST_MOTION = ("angle_dependent_friction", "stribeck_friction")   # a torque whose sign follows the motion
 DIRECTION_GROUP = ANGLE_TORQUES + ("stribeck_friction",)   # told apart by direction (open loops, direction_rivals)
 MARGIN_SHARE = 0.5    # a rival is close when its screening RSS drop is at least this share of the leader's
+TABLE_TIE = 0.02      # a closed loop's current and angle tables tie within this share of held-out (current_tie)
 GN_ITER = 2           # Gauss-Newton iterations of each family's table fit
 TRANSIT_KNOTS = True  # the tables' knots the plate passes through quickly stay free (table_heldout). Why: the
                       # twin's tables anchor a knot the recordings spent less than shapes.VISIT_MIN_S near to 0 (the
@@ -154,6 +155,9 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
         winner = next(c for c in ids if scores.get(c) == best)   # ties (shared table): the formulas' order
     else:
         winner = ids[0]
+    tie = current_tie(scores, winner, ids, open_loop(data))
+    if tie is not None:
+        winner = tie
     side = None
     others = [v for c, v in scores.items() if table_kind(c) != "angle"]
     if (winner in scores and table_kind(winner) == "angle" and all(c in ids for c in ANGLE_ONLY)
@@ -166,7 +170,8 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
             side = winner = angle_torque_family(grid, tq, np.minimum(_visited(grid, data), 200.0),
                                                 cur.spec.base.limp_home_rad)
     log("  angle-dependent torque rivals " + ", ".join(ids) + ": family tables held-out "
-        + ", ".join(f"{c} {scores[c]:.3g}" if c in scores else f"{c} failed" for c in ids) + f" -> {winner}")
+        + ", ".join(f"{c} {scores[c]:.3g}" if c in scores else f"{c} failed" for c in ids) + f" -> {winner}"
+        + (" (a closed loop's tie: the current follows the angle torque; the angle-only torque)" if tie else ""))
     ev = {"rivals": [c for c in ids if c != winner], "winner": winner,
           "heldout_table": scores, "signature": {c: SIGNATURE[c] for c in ids},
           "rule": "each family's torque table in angle (current-proportional, opposing the motion, or angle only) "
@@ -174,9 +179,36 @@ def discriminate(cur: F.FitResult, data: Data, ids: list[str], log=print) -> dic
     if side is not None:
         ev["side"] = (f"{side}: the learned angle torque acts " + ("below limp-home (the spring's closing side)"
                       if side == "spring_asymmetry" else "over the opening, not only below limp-home"))
+    if tie is not None:
+        ev["tie"] = (f"a closed loop's current table and angle table tie (within {TABLE_TIE:.0%}): the current "
+                     "follows the angle torque there, the tables carry no evidence that the torque scales with the "
+                     "current, and the angle-only torque is named")
     if failed:
         ev["failed"] = failed
     return ev
+
+
+def current_tie(scores: dict, winner: str, ids: list[str], is_open: bool) -> str | None:
+    """The angle-only family (first of ``ids`` with the angle table) that replaces ``winner``, a current-proportional
+    family (table kind shaft_flux_loss), when the angle table's held-out error is within TABLE_TIE of the current
+    table's in a closed loop (``is_open`` False); else None.
+
+    Why. A closed loop holding its set points drives the current the plate's torques ask for: with an angle torque
+    a(phi) the holding current is (spring + a(phi)) / k, a function of the angle, so a table i dk(phi) and a table
+    a(phi) describe the same recording and score the same held-out (the torque-side test is degenerate). Only a
+    recording where the current at one angle varies (an open loop through 0 A, an unpowered rest where a(phi) acts)
+    shows the current scaling; when the tables tie the data do not show it, and the family that claims less (a
+    torque of the angle alone, not one that also scales with the current) is named. An open loop is left to the
+    scores (its current passes through zero: a tie there is evidence of its own). Measured: airflow_torque@1 3B
+    closed s49 (a plateau of -0.0096 N m above 53 deg; the training visits it only at 1.5-5.8 A): tables held-out
+    shaft_flux_loss 2.41, airflow 2.42; named shaft_flux_loss, twin 55x on the open held-out (its formula's loss
+    growing as the angle squared, times the open loop's 5 A above the visited 67 deg)."""
+    if is_open or winner not in scores or table_kind(winner) != "shaft_flux_loss":
+        return None
+    for c in ids:
+        if table_kind(c) == "angle" and c in scores and scores[c] <= (1.0 + TABLE_TIE) * scores[winner]:
+            return c
+    return None
 
 
 # ------------------------------------------------------------------------------------ voltage side or torque side
