@@ -36,7 +36,7 @@ import numpy as np
 AR_LAGS_S = 0.04        # P: the voltage's own past, in seconds (a controller's filters are forgotten within it)
 AR_LAGS_MAX = 40
 READING_LAGS = 10       # M: the voltage may react up to this many samples after the reading
-NULL_SHIFTS = 30
+NULL_SHIFTS = 200      # circular shifts of the null: 30 left the z-score of an open loop at 0.9-13.5 by the draw (below)
 TRIM = 4.0
 LOOP_Z = 8.0            # closed loop when the z-score exceeds this (measured: scripts/loop_detection.py)
 MAX_SAMPLES = 200_000   # longer recordings are tested on their first MAX_SAMPLES samples
