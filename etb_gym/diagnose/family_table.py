@@ -141,7 +141,13 @@ def _second_start(pf, h, spec_m, free, term: MapTerm, view: Data, data: Data, co
     x2[k_c] = [-p.init / p.scale for p in ps]
     x2[kc] += float(np.sum(vis * table) / np.sum(vis)) / spec_m.params[kc][1].scale
     lo, hi = spec_m.bounds()
-    pb2 = Problem.make(spec_m, np.clip(x2, lo, hi), free, [term], data, formula=comp)
+    return _refit_from(pf, h, Problem.make(spec_m, np.clip(x2, lo, hi), free, [term], data, formula=comp), view,
+                       data)
+
+
+def _refit_from(pf, h, pb2, view: Data, data: Data):
+    """(fit, held-out error) of the table fitted again from the problem ``pb2``'s start where it lowers the first
+    fit's error ``h`` by MIN_GAIN, else the first fit ``pf`` and ``h`` (also where the second fit fails)."""
     try:
         pf2 = fit_penalized(pb2, view, log=None)
         h2 = heldout_error(dataclasses.replace(pf2.problem, x=pf2.fit.x), data, pf2.lams,
@@ -186,14 +192,7 @@ def _formula_off_start(pf, h, spec_m, free, term: MapTerm, view: Data, data: Dat
     x2 = np.clip(x2, lo, hi)
     plant, _ = spec_m.build(x2)
     comp2 = next((e for e in plant.effects if getattr(e, "effect_id", None) == cid), None)
-    pb2 = Problem.make(spec_m, x2, free, [term], data, formula=comp2)
-    try:
-        pf2 = fit_penalized(pb2, view, log=None)
-        h2 = heldout_error(dataclasses.replace(pf2.problem, x=pf2.fit.x), data, pf2.lams,
-                           pf2.jac if view is data else None)
-    except (ValueError, FloatingPointError, np.linalg.LinAlgError):
-        return pf, h
-    return (pf2, h2) if h2 < (1.0 - MIN_GAIN) * h else (pf, h)
+    return _refit_from(pf, h, Problem.make(spec_m, x2, free, [term], data, formula=comp2), view, data)
 
 
 def refine_family(final: F.FitResult, cid: str, data: Data, log=print, split: bool = True) -> Refinement | None:

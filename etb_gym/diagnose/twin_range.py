@@ -321,8 +321,6 @@ def hold_airflow(final, shaped, data, note: dict | None = None, significant=None
       -15.4 mN m from 66 deg (the truth's -15.5): 8.7x -> 2.4x; s41 (rate +8.5 %) 3.5x -> 2.2x.
 
     ``note`` (report.json ``replay_tables``) gets ``airflow_beyond``."""
-    from .closed_twin import _replay_cost
-    from .model import replay_view
     from .shapes import data_angles_rad
     import dataclasses
     if shaped is None or not data.recs or not all(rd.residual == "observer" for rd in data.recs):
@@ -336,29 +334,7 @@ def hold_airflow(final, shaped, data, note: dict | None = None, significant=None
         if e is not None:
             x = e.pop("x")
             edited.append(e)
-    if not edited:
-        return final
-    lo, hi = final.spec.bounds()
-    x = np.clip(x, lo, hi)
-    rv = replay_view(data)
-    c0, n0 = _replay_cost(final, rv)
-    margin = math.sqrt(2 * max(n0, 1))
-    cand = dataclasses.replace(final, x=x)
-    c1, _ = _replay_cost(cand, rv)
-    kept = bool(math.isfinite(c1) and c1 <= c0 + margin)
-    guard = None
-    if kept and significant is not None and not significant(final):
-        kept = not significant(cand)
-        guard = "passed" if kept else "the edit would leave a significant mismatch"
-    if note is not None:
-        note["airflow_beyond"] = {"tables": edited, "replay_cost_before": c0, "replay_cost_after": c1,
-                                  "margin": margin, "kept": kept, **({"verdict_guard": guard} if guard else {})}
-    if not kept:
-        return final
-    for ref in shaped.refinements:        # the report draws the exported table
-        if any(e["table"] == ref.term.id for e in edited) and ref.fit.spec.params == final.spec.params:
-            ref.fit = dataclasses.replace(ref.fit, x=x)
-    return cand
+    return _keep_edit(final, x, edited, shaped, data, significant, note, "airflow_beyond")
 
 
 FRICTION_LEVEL = ("angle_dependent_friction",)   # families whose angle table is a friction level (hold_friction)
@@ -423,12 +399,10 @@ def hold_friction(final, shaped, data, note: dict | None = None, significant=Non
     Kept where the replay of the recorded voltage gets no worse than its noise (sqrt(2 n)) and the verdict's test
     (``significant``) finds no new mismatch (as :func:`hold_airflow`). ``note`` (report.json ``replay_tables``)
     gets ``friction_beyond``."""
-    from .closed_twin import _replay_cost, reached_knots
+    from .closed_twin import reached_knots
     from .family_table import _formula_component
-    from .model import replay_view
     from .penalized import formula_profile
     from .shapes import visit_time_s
-    import dataclasses
     if shaped is None or not data.recs:
         return final
     base = final.spec.base
@@ -460,6 +434,17 @@ def hold_friction(final, shaped, data, note: dict | None = None, significant=Non
         edited.append({"table": term.id, "slow_deg": list(rng),
                        "identified_deg": [float(np.degrees(grid[seen[0]])), float(np.degrees(grid[seen[-1]]))],
                        "total_before": total.tolist(), "total_after": new.tolist()})
+    return _keep_edit(final, x, edited, shaped, data, significant, note, "friction_beyond")
+
+
+def _keep_edit(final, x, edited: list, shaped, data, significant, note, key: str):
+    """``final`` with its tables edited to ``x`` (``edited``: what changed, per table), kept where the replay of the
+    training recordings does not cost more than its noise (sqrt(2 n)) and, for a final model the verdict's test
+    passes, still passes it; ``note[key]`` gets the figures. The report's refinements draw the kept tables."""
+    import dataclasses
+
+    from .closed_twin import _replay_cost
+    from .model import replay_view
     if not edited:
         return final
     lo, hi = final.spec.bounds()
@@ -475,8 +460,8 @@ def hold_friction(final, shaped, data, note: dict | None = None, significant=Non
         kept = not significant(cand)
         guard = "passed" if kept else "the edit would leave a significant mismatch"
     if note is not None:
-        note["friction_beyond"] = {"tables": edited, "replay_cost_before": c0, "replay_cost_after": c1,
-                                   "margin": margin, "kept": kept, **({"verdict_guard": guard} if guard else {})}
+        note[key] = {"tables": edited, "replay_cost_before": c0, "replay_cost_after": c1, "margin": margin,
+                     "kept": kept, **({"verdict_guard": guard} if guard else {})}
     if not kept:
         return final
     for ref in shaped.refinements:        # the report draws the exported table
