@@ -8,7 +8,7 @@ import numpy as np
 
 from etb_gym.components import effects_maps as mx
 from etb_gym.diagnose import shapes as S
-from etb_gym.diagnose.model import LOOP_Z, prepare
+from etb_gym.diagnose.model import prepare
 from etb_gym.recordings import Recording
 
 GRID = np.array([0.0, 0.01, 0.03, 0.1, 0.3, 1.0, 3.0, 9.0])
@@ -57,7 +57,7 @@ def test_a_closed_loops_rest_runs_stay_counted():
     """The controller holds the plate against the band at its set points (the observer sees the level there):
     the rule is the open loop's."""
     data = _data()
-    closed = dataclasses.replace(data, recs=[dataclasses.replace(rd, closed_loop_evidence=LOOP_Z + 1.0)
+    closed = dataclasses.replace(data, recs=[dataclasses.replace(rd, residual="observer")
                                              for rd in data.recs])
     assert not np.any(S.resting_mask(closed))
     w = S.data_speeds_rad_s(closed)

@@ -19,7 +19,7 @@ from scipy.interpolate import CubicSpline
 
 from ..components import effects_maps as mx
 from .candidates import Candidate, FitParam
-from .model import LOOP_Z, Data
+from .model import Data
 
 ANGLE_KNOTS = 16         # knots of a refined angle map over the stroke
 PROFILE_KNOTS = 17       # knots of a torque-constant profile over the stroke (5.6 deg on 3B)
@@ -161,7 +161,8 @@ def data_speeds_rad_s(data: Data) -> np.ndarray:
 
 def resting_mask(data: Data) -> np.ndarray:
     """Per sample of :func:`data_speeds_rad_s`: True inside the rest runs (``RecData.rest``, the noise floor's runs
-    where the plate stands still) of the recordings made in open loop. There the readings' speed is the noise's
+    where the plate stands still) of the recordings replayed as open loops (``residual`` "replay": the loop
+    detector's choice, or the user's ``--residual``). There the readings' speed is the noise's
     (0.01-0.1 rad/s on a 0.03 deg reading, either sign), not a sliding speed, and a plate resting under the
     recorded voltage lies anywhere inside the friction band: a speed table's knots are not visited by them
     (round 34, x34stribeck: rest credited 0.4-0.9 s to each direction's 0.01-0.1 rad/s knots of stribeck@2
@@ -174,7 +175,7 @@ def resting_mask(data: Data) -> np.ndarray:
     out = []
     for rd in data.recs:
         m = np.zeros(rd.rec.n, bool)
-        if rd.closed_loop_evidence <= LOOP_Z:
+        if rd.residual == "replay":
             for a, b in rd.rest:
                 m[a:b] = True
         out.append(m)
